@@ -1,0 +1,170 @@
+"""ScenarioManifest: the contract every artifact is keyed by (via `manifest_hash`)."""
+
+from __future__ import annotations
+
+from pathlib import PurePosixPath
+from typing import Annotated, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from schemas import SCHEMA_VERSION
+from schemas.hashing import content_hash
+
+Vec3 = tuple[float, float, float]
+# Bounds that keep a hostile or mistyped manifest from asking for absurd work.
+MAX_SIDE = 4096
+MAX_FPS = 240
+MAX_HORIZON_S = 3600.0
+
+
+class Frozen(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid", allow_inf_nan=False)
+
+
+def check_relative_path(value: str | None) -> str | None:
+    """Paths inside manifests are relative and may not climb out of their root."""
+    if value is None:
+        return value
+    if "\0" in value:
+        raise ValueError("path contains a NUL byte")
+    path = PurePosixPath(value.replace("\\", "/"))
+    if not path.parts:
+        raise ValueError("path is empty")
+    if path.is_absolute() or value.startswith("~") or ":" in path.parts[0]:
+        raise ValueError(f"path {value!r} must be relative")
+    if ".." in path.parts:
+        raise ValueError(f"path {value!r} climbs out of its root with '..'")
+    return value
+
+
+class Camera(Frozen):
+    """A named camera: pose (position looking at a point), resolution and frame rate."""
+
+    name: str = Field(pattern=r"^[a-z][a-z0-9_]{0,31}$")
+    mount: Literal["world", "wrist", "vehicle"] = "world"
+    position: Vec3
+    look_at: Vec3 = (0.0, 0.0, 0.0)
+    fovy_deg: float = Field(45.0, gt=5, lt=170)
+    resolution: tuple[Annotated[int, Field(ge=16, le=MAX_SIDE)], Annotated[int, Field(ge=16, le=MAX_SIDE)]]
+    fps: float = Field(30.0, gt=0, le=MAX_FPS)
+
+    @model_validator(mode="after")
+    def _looks_somewhere(self) -> "Camera":
+        if self.position == self.look_at:
+            raise ValueError("camera position and look_at coincide")
+        return self
+
+
+class Embodiment(Frozen):
+    kind: Literal["arm", "mobile", "vehicle"]
+    robot: str = Field("builtin_arm", pattern=r"^[a-z][a-z0-9_\-]{0,63}$")
+    mjcf: str | None = Field(None, description="MJCF file relative to the robots root")
+    action_space: Literal["ee_delta", "joint_position", "velocity"] = "ee_delta"
+
+    _mjcf = field_validator("mjcf")(classmethod(lambda cls, v: check_relative_path(v)))
+
+
+class Task(Frozen):
+    kind: Literal["bin_pick", "push", "drive"]
+    instruction: str = Field(min_length=1, max_length=500)
+    objects: tuple[str, ...] = Field(default=("package",), max_length=32)
+    controller_noise: float = Field(0.0, ge=0, le=1)
+
+
+# Stressors: each a real change to the scene, typed with its parameters.
+class DimLight(Frozen):
+    kind: Literal["dim_light"] = "dim_light"
+    lux: float = Field(50.0, gt=0, le=100_000, description="lux-like level; 500 is a lit warehouse")
+
+
+class ForkliftCrossing(Frozen):
+    kind: Literal["forklift_crossing"] = "forklift_crossing"
+    speed_mps: float = Field(1.5, gt=0, le=20)
+    lane_m: float = Field(0.8, ge=-10, le=10, description="lateral offset of the lane from the workcell")
+    start_s: float = Field(1.0, ge=0, le=MAX_HORIZON_S)
+
+
+class Occluder(Frozen):
+    kind: Literal["occluder"] = "occluder"
+    coverage: float = Field(0.3, gt=0, le=1, description="fraction of the target hidden")
+
+
+class CameraJitter(Frozen):
+    kind: Literal["camera_jitter"] = "camera_jitter"
+    amplitude_deg: float = Field(1.0, gt=0, le=30)
+    frequency_hz: float = Field(5.0, gt=0, le=60)
+
+
+class Distractors(Frozen):
+    kind: Literal["distractors"] = "distractors"
+    count: int = Field(3, ge=1, le=50)
+
+
+class Appearance(Frozen):
+    kind: Literal["appearance"] = "appearance"
+    colour_jitter: float = Field(0.3, ge=0, le=1)
+    texture: bool = True
+
+
+Stressor = Annotated[
+    Union[DimLight, ForkliftCrossing, Occluder, CameraJitter, Distractors, Appearance],
+    Field(discriminator="kind"),
+]
+
+
+class Evaluation(Frozen):
+    target: Literal["lift_clear", "push_to_goal", "reach_goal"]
+    lift_height_m: float = Field(0.10, gt=0, le=5)
+    goal_tolerance_m: float = Field(0.05, gt=0, le=5)
+    min_success_rate: float = Field(0.8, ge=0, le=1)
+
+
+class ManifestMeta(Frozen):
+    """Bookkeeping that does not change what a manifest means: left out of the hash."""
+
+    author: str | None = None
+    created: str | None = None
+    notes: str | None = Field(None, max_length=10_000)
+
+
+class ScenarioManifest(Frozen):
+    schema_version: Literal[1] = SCHEMA_VERSION
+    name: str = Field(pattern=r"^[a-z0-9][a-z0-9_\-]{0,63}$")
+    description: str = Field("", max_length=2000)
+    embodiment: Embodiment
+    task: Task
+    cameras: tuple[Camera, ...] = Field(min_length=1, max_length=16)
+    stressors: tuple[Stressor, ...] = Field(default=(), max_length=32)
+    evaluation: Evaluation
+    horizon_s: float = Field(gt=0, le=MAX_HORIZON_S)
+    seed: int = Field(0, ge=0, lt=2**31)
+    parent: str | None = Field(None, pattern=r"^[0-9a-f]{64}$", description="hash of the manifest this one derives from")
+    meta: ManifestMeta = ManifestMeta()
+
+    @field_validator("stressors", mode="after")
+    @classmethod
+    def _stressor_set(cls, value: tuple) -> tuple:
+        # Stressors are a set: listing order carries no meaning, so it cannot change the hash.
+        kinds = [s.kind for s in value]
+        if len(set(kinds)) != len(kinds):
+            raise ValueError(f"stressor kinds repeat: {sorted(kinds)}")
+        return tuple(sorted(value, key=lambda s: s.kind))
+
+    @model_validator(mode="after")
+    def _unique_cameras(self) -> "ScenarioManifest":
+        names = [c.name for c in self.cameras]
+        if len(set(names)) != len(names):
+            raise ValueError(f"camera names repeat: {sorted(names)}")
+        return self
+
+    def stressor(self, kind: str):
+        return next((s for s in self.stressors if s.kind == kind), None)
+
+
+VOLATILE_FIELDS = frozenset({"meta", "description"})
+
+
+def manifest_hash(manifest: ScenarioManifest) -> str:
+    """sha256 of the canonical JSON of what the manifest means (meta and description left out)."""
+    body = manifest.model_dump(mode="json", exclude=set(VOLATILE_FIELDS))
+    return content_hash(body)

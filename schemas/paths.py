@@ -1,0 +1,29 @@
+"""Every on-disk path template and size cap. Nothing else formats a path."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+WAREHOUSE_FILE = "lineage.duckdb"
+PREFECT_DIR = "prefect"
+QUARANTINE_DIR = "quarantine"
+
+EPISODE_DIR = "episodes/{manifest_hash:.12}/episode_{index:06d}"
+EPISODE_VIDEO = EPISODE_DIR + "/{camera}.mp4"
+EPISODE_TABLE = EPISODE_DIR + "/steps.parquet"
+EPISODE_META = EPISODE_DIR + "/meta.json"
+
+CORPUS_VIDEO = "corpus/seed_{seed:06d}/raw_{index:04d}.mp4"
+CORPUS_TRUTH = "corpus/seed_{seed:06d}/raw_{index:04d}.truth.json"
+
+CLIP_FILE = "clips/{source_id:.2}/{clip_id}.mp4"
+SHARD_FILE = "shards/{manifest_hash:.12}/{resolution}/{length}/part-{index:05d}.parquet"
+SHARD_MAX_BYTES = 256 * 1024 * 1024
+SHARD_MAX_CLIPS = 1000
+
+CHECKPOINT_DIR = "checkpoints/{model}/{checkpoint_id}"
+TOKEN_SHARD_FILE = "tokens/{tokenizer_id:.12}/part-{index:05d}.parquet"
+
+
+def resolve(root: Path, template: str, **fields) -> Path:
+    return Path(root) / template.format(**fields)

@@ -1,0 +1,31 @@
+"""The one runtime settings class. Every field reads from WORLDLINE_<NAME>."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Literal
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+from schemas import paths
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="WORLDLINE_", frozen=True, extra="ignore")
+
+    data_root: Path = Field(Path(".worldline"), description="where artifacts, the warehouse and Prefect's home live")
+    warehouse: Path | None = Field(None, description="DuckDB lineage file; default <data_root>/lineage.duckdb")
+    prefect_home: Path | None = Field(None, description="PREFECT_HOME; default <data_root>/prefect")
+    robots_root: Path = Field(Path("../shared/data/robots"), description="where MJCF paths in manifests resolve")
+    task_runner: Literal["local", "ray"] = "local"
+    ray_address: str | None = None
+    workers: int = Field(2, ge=1, le=256)
+
+    @property
+    def warehouse_path(self) -> Path:
+        return self.warehouse or self.data_root / paths.WAREHOUSE_FILE
+
+    @property
+    def prefect_home_path(self) -> Path:
+        return self.prefect_home or self.data_root / paths.PREFECT_DIR

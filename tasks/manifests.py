@@ -1,0 +1,109 @@
+"""Read, validate and hash scenario manifests. Safe YAML only; every error names file and field."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+from pydantic import ValidationError
+
+from schemas.hashing import canonical_json
+from schemas.manifest import ScenarioManifest, manifest_hash
+from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, ManifestRow
+
+MAX_BYTES = 256 * 1024
+MAX_NODES = 5_000
+MAX_DEPTH = 16
+
+
+class ManifestError(ValueError):
+    """One line: the file, the field and the problem."""
+
+
+def _check_shape(node: yaml.Node, where: str) -> None:
+    # Walk the composed tree before constructing anything: aliases (billion laughs),
+    # depth and size are refused here, so nothing big is ever built.
+    stack = [(node, 1)]
+    count = 0
+    while stack:
+        current, depth = stack.pop()
+        count += 1
+        if count > MAX_NODES:
+            raise ManifestError(f"{where}: more than {MAX_NODES} YAML nodes")
+        if depth > MAX_DEPTH:
+            raise ManifestError(f"{where}: nested deeper than {MAX_DEPTH} levels")
+        if isinstance(current, yaml.MappingNode):
+            stack.extend((n, depth + 1) for pair in current.value for n in pair)
+        elif isinstance(current, yaml.SequenceNode):
+            stack.extend((n, depth + 1) for n in current.value)
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    def compose_node(self, parent, index):  # noqa: D401 - PyYAML hook
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise ManifestError(f"YAML alias *{event.anchor} is not allowed (line {event.start_mark.line + 1})")
+        return super().compose_node(parent, index)
+
+
+def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:
+    if len(text.encode("utf-8")) > MAX_BYTES:
+        raise ManifestError(f"{where}: larger than {MAX_BYTES} bytes")
+    try:
+        loader = _NoAliasLoader(text)
+        try:
+            node = loader.get_single_node()
+        finally:
+            loader.dispose()
+        if node is None:
+            raise ManifestError(f"{where}: empty manifest")
+        _check_shape(node, where)
+        data = yaml.load(text, Loader=yaml.SafeLoader)  # safe: no object construction from tags
+    except ManifestError as exc:
+        msg = str(exc)
+        raise ManifestError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+    except yaml.YAMLError as exc:
+        problem = " ".join(str(exc).split())
+        raise ManifestError(f"{where}: not valid YAML: {problem}") from None
+    except RecursionError:
+        raise ManifestError(f"{where}: nested too deeply") from None
+    if not isinstance(data, dict):
+        raise ManifestError(f"{where}: the top level must be a mapping, not {type(data).__name__}")
+    try:
+        return ScenarioManifest.model_validate(data)
+    except ValidationError as exc:
+        problems = []
+        for err in exc.errors():
+            field = ".".join(str(p) for p in err["loc"]) or "(top level)"
+            problems.append(f"{field}: {err['msg']}")
+        raise ManifestError(f"{where}: {'; '.join(problems)}") from None
+
+
+def load(path: Path | str) -> ScenarioManifest:
+    path = Path(path)
+    try:
+        if not path.is_file():
+            raise ManifestError(f"{path}: not a file")
+        if path.stat().st_size > MAX_BYTES:
+            raise ManifestError(f"{path}: larger than {MAX_BYTES} bytes")
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ManifestError(f"{path}: cannot read: {exc}") from None
+    return parse_text(text, str(path))
+
+
+def dump_yaml(manifest: ScenarioManifest) -> str:
+    return yaml.safe_dump(manifest.model_dump(mode="json"), sort_keys=False)
+
+
+def lineage(manifest: ScenarioManifest, source_uri: str | None = None) -> LineageBatch:
+    """The manifest row and its artifact (the root every other artifact descends from)."""
+    digest = manifest_hash(manifest)
+    row = ManifestRow(manifest_hash=digest, name=manifest.name, schema_version=manifest.schema_version,
+                      body=canonical_json(manifest), source_uri=source_uri, parent_hash=manifest.parent)
+    art = ArtifactRecord(artifact_id=digest, kind="manifest", uri=source_uri, sha256=digest,
+                         manifest_hash=digest, attrs={"name": manifest.name})
+    batch = LineageBatch(manifests=[row], artifacts=[art])
+    if manifest.parent:
+        batch.edges.append(EdgeRecord(parent_id=manifest.parent, child_id=digest, relation="derived_manifest"))
+    return batch

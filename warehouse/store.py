@@ -1,0 +1,172 @@
+"""The lineage writer: one process, batched transactions, idempotent inserts."""
+
+from __future__ import annotations
+
+import json
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import duckdb
+import pyarrow as pa
+
+from schemas import SCHEMA_VERSION
+from schemas.records import LineageBatch, Record, RunRecord
+
+# Column order of each table as the writer fills it; JSON columns are written as text.
+COLUMNS: dict[str, tuple[str, ...]] = {
+    "manifests": ("manifest_hash", "name", "schema_version", "body", "source_uri", "parent_hash"),
+    "stage_runs": ("stage_run_id", "run_id", "stage", "input_key", "manifest_hash", "status",
+                   "n_in", "n_out", "seconds", "attrs"),
+    "artifacts": ("artifact_id", "kind", "uri", "sha256", "bytes", "manifest_hash", "stage_run_id", "attrs"),
+    "edges": ("parent_id", "child_id", "relation"),
+    "metrics": ("subject_id", "name", "step", "value", "stage_run_id", "manifest_hash", "attrs"),
+    "rejections": ("artifact_id", "stage", "reason", "scores", "detail", "stage_run_id", "manifest_hash"),
+}
+JSON_COLUMNS = {"attrs", "scores", "params"}
+# version -> statements that take a warehouse from version-1 to version. None yet.
+MIGRATIONS: dict[int, tuple[str, ...]] = {}
+
+
+class WarehouseError(RuntimeError):
+    pass
+
+
+def ddl() -> str:
+    return resources.files("warehouse").joinpath("schema.sql").read_text()
+
+
+def _cell(column: str, value: Any) -> Any:
+    if column in JSON_COLUMNS:
+        return json.dumps(value, sort_keys=True) if value is not None else None
+    return value
+
+
+def _arrow(table: str, rows: list[Record]) -> pa.Table:
+    cols = COLUMNS[table]
+    data = {c: [_cell(c, getattr(r, c)) for r in rows] for c in cols}
+    return pa.table(data)
+
+
+class Warehouse:
+    """Opens (creating or checking the schema version of) a DuckDB lineage file."""
+
+    def __init__(self, path: Path | str, read_only: bool = False):
+        self.path = Path(path)
+        self.read_only = read_only
+        if not read_only:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        elif not self.path.exists():
+            raise WarehouseError(f"{self.path}: no warehouse here yet (run a flow first)")
+        try:
+            self.con = duckdb.connect(str(self.path), read_only=read_only)
+        except duckdb.Error as exc:
+            raise WarehouseError(f"{self.path}: cannot open the warehouse: {exc}") from exc
+        self._lock = threading.Lock()
+        self._check_version()
+
+    # -- schema -------------------------------------------------------------------------
+    def _tables(self) -> set[str]:
+        rows = self.con.execute("SELECT table_name FROM information_schema.tables WHERE table_schema = 'main'").fetchall()
+        return {r[0] for r in rows}
+
+    def _check_version(self) -> None:
+        tables = self._tables()
+        if "worldline_meta" not in tables:
+            if tables:
+                raise WarehouseError(f"{self.path}: not a Worldline warehouse (tables {sorted(tables)[:5]} but no worldline_meta)")
+            if self.read_only:
+                raise WarehouseError(f"{self.path}: empty database, not a Worldline warehouse")
+            self.con.execute(ddl())
+            self.con.execute("INSERT INTO worldline_meta VALUES ('schema_version', ?)", [str(SCHEMA_VERSION)])
+            return
+        row = self.con.execute("SELECT value FROM worldline_meta WHERE key = 'schema_version'").fetchall()
+        version = int(row[0][0]) if row else 0
+        if version > SCHEMA_VERSION:
+            raise WarehouseError(
+                f"{self.path}: schema version {version} was written by a newer Worldline "
+                f"(this one knows {SCHEMA_VERSION}); refusing to mix them")
+        if version < SCHEMA_VERSION:
+            missing = [v for v in range(version + 1, SCHEMA_VERSION + 1) if v not in MIGRATIONS]
+            if missing or self.read_only:
+                raise WarehouseError(
+                    f"{self.path}: schema version {version} is older than {SCHEMA_VERSION} and "
+                    f"{'cannot be migrated read-only' if self.read_only else 'has no migration'}; "
+                    "move it aside or re-run the flows into a new file")
+            with self.transaction():
+                for v in range(version + 1, SCHEMA_VERSION + 1):
+                    for stmt in MIGRATIONS[v]:
+                        self.con.execute(stmt)
+                self.con.execute("UPDATE worldline_meta SET value = ? WHERE key = 'schema_version'", [str(SCHEMA_VERSION)])
+
+    # -- writing ------------------------------------------------------------------------
+    @contextmanager
+    def transaction(self) -> Iterator[duckdb.DuckDBPyConnection]:
+        with self._lock:
+            self.con.execute("BEGIN TRANSACTION")
+            try:
+                yield self.con
+            except BaseException:
+                self.con.execute("ROLLBACK")
+                raise
+            self.con.execute("COMMIT")
+
+    def write(self, batch: LineageBatch) -> int:
+        """Write a whole batch in one transaction; rows already present are left as they are."""
+        written = 0
+        with self.transaction() as con:
+            for table in COLUMNS:
+                rows = getattr(batch, table)
+                if not rows:
+                    continue
+                arrow_rows = _arrow(table, rows)  # noqa: F841 (read by DuckDB's replacement scan)
+                cols = ", ".join(COLUMNS[table])
+                con.execute(f"INSERT OR IGNORE INTO {table} ({cols}) SELECT {cols} FROM arrow_rows")
+                written += len(rows)
+        return written
+
+    def start_run(self, run: RunRecord) -> None:
+        with self.transaction() as con:
+            con.execute(
+                "INSERT OR IGNORE INTO runs (run_id, flow, manifest_hash, prefect_flow_run_id, status, params) "
+                "VALUES (?, ?, ?, ?, ?, ?)",
+                [run.run_id, run.flow, run.manifest_hash, run.prefect_flow_run_id, run.status,
+                 json.dumps(run.params, sort_keys=True, default=str)])
+
+    def finish_run(self, run_id: str, status: str, message: str | None = None) -> None:
+        with self.transaction() as con:
+            con.execute("UPDATE runs SET status = ?, message = ?, ended_at = current_timestamp WHERE run_id = ?",
+                        [status, message, run_id])
+
+    def completed_stage_runs(self, stage: str, input_keys: list[str]) -> set[str]:
+        """The input keys of this stage that a finished run already covered (the skip marker)."""
+        if not input_keys:
+            return set()
+        keys = pa.table({"k": input_keys})  # noqa: F841
+        rows = self.con.execute(
+            "SELECT input_key FROM stage_runs WHERE stage = ? AND status IN ('completed', 'partial') "
+            "AND input_key IN (SELECT k FROM keys)", [stage]).fetchall()
+        return {r[0] for r in rows}
+
+    # -- reading ------------------------------------------------------------------------
+    def query(self, sql: str, params: dict[str, Any] | list[Any] | None = None) -> tuple[list[str], list[tuple]]:
+        with self._lock:
+            cur = self.con.execute(sql, params or [])
+            cols = [d[0] for d in cur.description] if cur.description else []
+            return cols, cur.fetchall()
+
+    def counts(self) -> dict[str, int]:
+        tables = ("runs", *COLUMNS)
+        return {t: self.con.execute(f"SELECT count(*) FROM {t}").fetchall()[0][0] for t in tables}
+
+    def close(self) -> None:
+        self.con.close()
+
+    def __enter__(self) -> "Warehouse":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
