@@ -84,5 +84,20 @@ CREATE TABLE IF NOT EXISTS rejections (
     PRIMARY KEY (artifact_id, stage)
 );
 
+-- The transitive closure of edges, kept by the writer (warehouse/closure.sql, a recursive CTE
+-- over each batch's new edges) so that "everything behind this artifact" is one index lookup
+-- instead of a walk whose every step scans all edges. Ancestor columns are copied from
+-- artifacts at write time (a parent is always recorded before or with its child's edge).
+CREATE TABLE IF NOT EXISTS ancestry (
+    descendant_id     VARCHAR NOT NULL,
+    ancestor_id       VARCHAR NOT NULL,
+    depth             INTEGER NOT NULL,  -- shortest number of edges between them
+    ancestor_kind     VARCHAR,
+    ancestor_uri      VARCHAR,
+    ancestor_sha256   VARCHAR,
+    ancestor_manifest VARCHAR
+);
+
+CREATE INDEX IF NOT EXISTS ancestry_by_descendant ON ancestry (descendant_id);
 CREATE INDEX IF NOT EXISTS rejections_by_manifest ON rejections (manifest_hash);
 CREATE INDEX IF NOT EXISTS artifacts_by_manifest ON artifacts (manifest_hash);

@@ -39,6 +39,10 @@ def ddl() -> str:
     return resources.files("warehouse").joinpath("schema.sql").read_text()
 
 
+def closure_sql() -> str:
+    return resources.files("warehouse").joinpath("closure.sql").read_text()
+
+
 def _cell(column: str, value: Any) -> Any:
     if column in JSON_COLUMNS:
         return json.dumps(value, sort_keys=True) if value is not None else None
@@ -126,6 +130,9 @@ class Warehouse:
                 cols = ", ".join(COLUMNS[table])
                 con.execute(f"INSERT OR IGNORE INTO {table} ({cols}) SELECT {cols} FROM arrow_rows")
                 written += len(rows)
+            if batch.edges:
+                batch_edges = _arrow("edges", batch.edges)  # noqa: F841 (read by closure.sql)
+                con.execute(closure_sql())
         return written
 
     def start_run(self, run: RunRecord) -> None:

@@ -1,15 +1,14 @@
 -- The full ancestry of one artifact: every parent, grandparent, ... back to raw videos and manifests.
 -- params: artifact
-WITH RECURSIVE ancestry(artifact_id, depth) AS (
-    SELECT $artifact, 0
-    UNION
-    SELECT e.parent_id, a.depth + 1
-    FROM edges e JOIN ancestry a ON e.child_id = a.artifact_id
-    WHERE a.depth < 64
+-- Reads the closure the writer keeps (warehouse/closure.sql, a recursive CTE run per batch);
+-- audits/ancestry_walk.sql walks the edges at query time instead and must agree with it.
+WITH found AS (
+    SELECT 0 AS depth, kind, artifact_id, uri, sha256, manifest_hash
+    FROM artifacts WHERE artifact_id = $artifact
+    UNION ALL
+    SELECT depth, ancestor_kind, ancestor_id, ancestor_uri, ancestor_sha256, ancestor_manifest
+    FROM ancestry WHERE descendant_id = $artifact
 )
-SELECT min(x.depth) AS depth, art.kind, x.artifact_id, art.uri, art.sha256, art.manifest_hash, m.name AS manifest_name
-FROM ancestry x
-LEFT JOIN artifacts art ON art.artifact_id = x.artifact_id
-LEFT JOIN manifests m ON m.manifest_hash = coalesce(art.manifest_hash, x.artifact_id)
-GROUP BY ALL
-ORDER BY depth, kind, x.artifact_id;
+SELECT f.*, m.name AS manifest_name
+FROM found f LEFT JOIN manifests m ON m.manifest_hash = f.manifest_hash
+ORDER BY f.depth, f.kind, f.artifact_id;

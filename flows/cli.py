@@ -1,0 +1,204 @@
+"""The `worldline` command: subcommands map to flows; each takes a manifest and a few overrides."""
+
+from __future__ import annotations
+
+import csv
+import json
+import sys
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+import flows  # noqa: F401  (sets PREFECT_HOME before anything imports prefect)
+from schemas.settings import Settings
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
+manifest_app = typer.Typer(no_args_is_help=True, help="Validate, hash and show scenario manifests.")
+app.add_typer(manifest_app, name="manifest")
+out = Console()
+err = Console(stderr=True)
+
+EXIT_INVALID = 2
+EXIT_NOT_BUILT = 3
+
+
+def _fail(message: str, code: int = EXIT_INVALID) -> None:
+    err.print(message, markup=False, highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _load_or_exit(path: Path):
+    from tasks.manifests import ManifestError, load
+
+    try:
+        return load(path)
+    except ManifestError as exc:
+        _fail(str(exc))
+
+
+def _print_rows(cols: list[str], rows: list[tuple], fmt: str, title: str | None = None) -> None:
+    if fmt == "json":
+        out.print_json(json.dumps([dict(zip(cols, r)) for r in rows], default=str))
+    elif fmt == "csv":
+        writer = csv.writer(sys.stdout)
+        writer.writerow(cols)
+        writer.writerows(rows)
+    else:
+        table = Table(title=title)
+        for c in cols:
+            table.add_column(c, overflow="fold")
+        for r in rows:
+            table.add_row(*("" if v is None else str(v) for v in r))
+        out.print(table)
+
+
+# -- manifests ----------------------------------------------------------------------------
+@manifest_app.command("validate")
+def manifest_validate(paths: list[Path]) -> None:
+    """Validate manifests: one line per invalid file (file, field, problem); exit 2 if any."""
+    from tasks.manifests import ManifestError, load
+
+    bad = 0
+    for path in paths:
+        try:
+            load(path)
+            out.print(f"ok {path}", highlight=False)
+        except ManifestError as exc:
+            bad += 1
+            err.print(str(exc), markup=False, highlight=False, soft_wrap=True)
+    if bad:
+        raise typer.Exit(EXIT_INVALID)
+
+
+@manifest_app.command("hash")
+def manifest_hash_cmd(path: Path) -> None:
+    """Print the manifest hash (sha256 of its canonical JSON)."""
+    from schemas.manifest import manifest_hash
+
+    out.print(manifest_hash(_load_or_exit(path)), highlight=False)
+
+
+@manifest_app.command("show")
+def manifest_show(path: Path) -> None:
+    """Print the manifest with every default filled in, and its hash."""
+    from schemas.manifest import manifest_hash
+    from tasks.manifests import dump_yaml
+
+    manifest = _load_or_exit(path)
+    out.print(f"# manifest_hash: {manifest_hash(manifest)}", highlight=False)
+    out.print(dump_yaml(manifest), highlight=False, markup=False)
+
+
+# -- lineage ------------------------------------------------------------------------------
+@app.command()
+def audit(
+    name: Optional[str] = typer.Argument(None, help="audit to run; omit to list them"),
+    manifest: Optional[str] = typer.Option(None, help="manifest hash"),
+    artifact: Optional[str] = typer.Option(None, help="artifact id"),
+    fmt: str = typer.Option("table", "--format", help="table | csv | json"),
+) -> None:
+    """Run a shipped audit query (warehouse/audits/NAME.sql) with bound parameters."""
+    from warehouse import audit as audits
+    from warehouse.store import Warehouse, WarehouseError
+
+    if name is None or name not in audits.available():
+        if name is not None:
+            err.print(f"unknown audit {name!r}", highlight=False)
+        lines = [f"  {n}: {audits.describe(n)}  (--{' --'.join(audits.parameters(audits.load(n)))})"
+                 for n in audits.available()]
+        (err if name else out).print("available audits:\n" + "\n".join(lines), highlight=False, markup=False)
+        raise typer.Exit(EXIT_INVALID if name else 0)
+    try:
+        sql, params = audits.bind(name, {"manifest": manifest, "artifact": artifact})
+    except ValueError as exc:
+        _fail(str(exc))
+    try:
+        with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+            cols, rows = wh.query(sql, params)
+    except WarehouseError as exc:
+        _fail(str(exc))
+    _print_rows(cols, rows, fmt, title=f"{name} ({len(rows)} rows)")
+
+
+@app.command()
+def summary() -> None:
+    """Counts of every lineage table and the latest runs."""
+    from warehouse.store import Warehouse, WarehouseError
+
+    try:
+        with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+            counts = wh.counts()
+            cols, rows = wh.query(
+                "SELECT flow, status, count(*) AS runs, max(ended_at) AS last_ended FROM runs GROUP BY ALL ORDER BY flow")
+            kcols, krows = wh.query("SELECT kind, count(*) AS n, sum(bytes) AS bytes FROM artifacts GROUP BY kind ORDER BY kind")
+    except WarehouseError as exc:
+        _fail(str(exc))
+    _print_rows(["table", "rows"], list(counts.items()), "table", title=f"lineage {Settings().warehouse_path}")
+    _print_rows(kcols, krows, "table", title="artifacts by kind")
+    _print_rows(cols, rows, "table", title="runs")
+
+
+# -- flows --------------------------------------------------------------------------------
+@app.command()
+def register(paths: list[Path]) -> None:
+    """Validate manifests and record them in lineage (nothing is written if one is invalid)."""
+    for path in paths:
+        _load_or_exit(path)
+    from flows.register import register as register_flow
+
+    for path in paths:
+        register_flow(str(path))
+
+
+@app.command()
+def demo() -> None:
+    """Run the whole loop on built-in generated data, then print a lineage summary."""
+    from flows.demo import demo as demo_flow
+
+    demo_flow()
+    summary()
+
+
+def _not_built(step: str, issue: int) -> None:
+    _fail(f"worldline {step}: not built yet (tracked in issue {issue})", EXIT_NOT_BUILT)
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def curate() -> None:
+    """Curate raw videos into Parquet shards (not built yet)."""
+    _not_built("curate", 4)
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def tokenize() -> None:
+    """Train the video tokenizer and write token shards (not built yet)."""
+    _not_built("tokenize", 7)
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def train() -> None:
+    """Pre-train and post-train world models (not built yet)."""
+    _not_built("train", 8)
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def panels() -> None:
+    """Generate matched scenario panels (not built yet)."""
+    _not_built("panels", 9)
+
+
+@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
+def evaluate() -> None:
+    """Evaluate policies on panels (not built yet)."""
+    _not_built("evaluate", 9)
+
+
+def main() -> None:
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,81 @@
+"""How a flow records itself: one run row, manifest rows, and batched lineage writes.
+
+The flow process is the only writer (DuckDB locks the file per process); tasks return
+`LineageBatch`es and the flow hands them to `RunContext.write`.
+"""
+
+from __future__ import annotations
+
+import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any
+
+from schemas.hashing import stable_id
+from schemas.manifest import ScenarioManifest, manifest_hash
+from schemas.records import LineageBatch, RunRecord
+from schemas.settings import Settings
+from tasks import manifests
+from warehouse.store import Warehouse
+
+
+def current_flow_run_id() -> str | None:
+    from prefect.runtime import flow_run
+
+    return flow_run.id
+
+
+@dataclass
+class RunContext:
+    run_id: str
+    flow: str
+    warehouse: Warehouse
+    manifest_hash: str | None
+    settings: Settings
+    status: str = "completed"
+    message: str | None = None
+    written: int = 0
+    failures: list[str] = field(default_factory=list)
+
+    def stage_run_id(self, stage: str, input_key: str) -> str:
+        return stable_id("stage_run", stage, input_key)
+
+    def pending(self, stage: str, input_keys: list[str]) -> list[str]:
+        """Input keys this stage has not finished yet (a completed stage run is the marker)."""
+        done = self.warehouse.completed_stage_runs(stage, input_keys)
+        return [k for k in input_keys if k not in done]
+
+    def write(self, batch: LineageBatch) -> None:
+        if len(batch):
+            self.written += self.warehouse.write(batch)
+
+    def fail_input(self, what: str) -> None:
+        self.failures.append(what)
+        self.status = "partial"
+
+
+@contextmanager
+def recorded_run(flow: str, settings: Settings, manifest: ScenarioManifest | None = None,
+                 source_uri: str | None = None, params: dict[str, Any] | None = None) -> Iterator[RunContext]:
+    prefect_id = current_flow_run_id()
+    run_id = prefect_id or str(uuid.uuid4())
+    digest = manifest_hash(manifest) if manifest is not None else None
+    warehouse = Warehouse(settings.warehouse_path)
+    try:
+        if manifest is not None:
+            warehouse.write(manifests.lineage(manifest, source_uri))
+        warehouse.start_run(RunRecord(run_id=run_id, flow=flow, manifest_hash=digest,
+                                      prefect_flow_run_id=prefect_id, params=params or {}))
+        ctx = RunContext(run_id=run_id, flow=flow, warehouse=warehouse, manifest_hash=digest, settings=settings)
+        try:
+            yield ctx
+        except BaseException as exc:
+            warehouse.finish_run(run_id, "failed", f"{type(exc).__name__}: {exc}"[:2000])
+            raise
+        message = ctx.message
+        if ctx.failures and not message:
+            message = f"{len(ctx.failures)} input(s) failed: " + "; ".join(ctx.failures)[:1800]
+        warehouse.finish_run(run_id, ctx.status, message)
+    finally:
+        warehouse.close()

@@ -1,0 +1,25 @@
+"""register: validate a manifest and record it in lineage (the root of every artifact)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from prefect import flow, task
+
+from flows.recording import recorded_run
+from schemas.manifest import manifest_hash
+from schemas.settings import Settings
+from tasks import manifests
+
+load_manifest = task(manifests.load, name="load-manifest")
+
+
+@flow(name="register", log_prints=True)
+def register(manifest_path: str) -> str:
+    """Validate first (an invalid manifest writes nothing), then record the manifest and this run."""
+    manifest = load_manifest(Path(manifest_path))
+    with recorded_run("register", Settings(), manifest, source_uri=manifest_path,
+                      params={"manifest": manifest_path}):
+        digest = manifest_hash(manifest)
+        print(f"registered {manifest.name} {digest[:12]} from {manifest_path}")
+    return digest

@@ -1,0 +1,57 @@
+import subprocess
+import sys
+
+import pytest
+from typer.testing import CliRunner
+
+from flows.cli import app
+from schemas.manifest import manifest_hash
+from tasks.manifests import load
+
+from tests.support import MANIFESTS, REPO
+
+runner = CliRunner()
+GOOD = MANIFESTS / "conveyor_push.yaml"
+
+
+def test_invalid_manifest_is_one_line_exit_2_and_nothing_written(tmp_path, data_root):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(GOOD.read_text().replace("resolution: [128, 128]", "resolution: [100000, 100000]"))
+    for args in (["manifest", "validate", str(bad)], ["register", str(bad)], ["manifest", "hash", str(bad)]):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, args
+        lines = [line for line in result.output.splitlines() if line.strip()]
+        assert len(lines) == 1 and str(bad) in lines[0] and "cameras.0.resolution" in lines[0]
+    assert not (data_root / "lineage.duckdb").exists()
+
+
+def test_validate_hash_and_show():
+    result = runner.invoke(app, ["manifest", "validate", *map(str, sorted(MANIFESTS.glob("*.yaml")))])
+    assert result.exit_code == 0 and result.output.count("ok ") == 3
+    result = runner.invoke(app, ["manifest", "hash", str(GOOD)])
+    assert result.output.strip() == manifest_hash(load(GOOD))
+    result = runner.invoke(app, ["manifest", "show", str(GOOD)])
+    assert manifest_hash(load(GOOD)) in result.output and "controller_noise" in result.output
+
+
+@pytest.mark.parametrize("step", ["tokenize", "train", "panels", "evaluate"])
+def test_unbuilt_steps_say_so(step):
+    result = runner.invoke(app, [step, "whatever"])
+    assert result.exit_code == 3 and "not built yet" in result.output
+
+
+def test_unknown_audit_lists_the_available_ones(data_root):
+    result = runner.invoke(app, ["audit", "no_such_audit"])
+    assert result.exit_code == 2
+    assert "unknown audit" in result.output and "ancestry" in result.output and "rejections" in result.output
+
+
+def test_audit_without_warehouse_is_a_clear_error(data_root):
+    result = runner.invoke(app, ["audit", "rejections", "--manifest", "a" * 64])
+    assert result.exit_code == 2 and "no warehouse here yet" in result.output
+
+
+def test_console_script_runs():
+    result = subprocess.run([sys.executable, "-m", "flows.cli", "manifest", "hash", str(GOOD)],
+                            capture_output=True, text=True, cwd=REPO, timeout=120)
+    assert result.returncode == 0 and len(result.stdout.strip()) == 64
