@@ -8,7 +8,8 @@ WAREHOUSE_FILE = "lineage.duckdb"
 PREFECT_DIR = "prefect"
 QUARANTINE_DIR = "quarantine"
 
-EPISODE_DIR = "episodes/{manifest_hash:.12}/episode_{index:06d}"
+EPISODES_OF_MANIFEST = "episodes/{manifest_hash:.12}"
+EPISODE_DIR = EPISODES_OF_MANIFEST + "/episode_{index:06d}"
 EPISODE_VIDEO = EPISODE_DIR + "/{camera}.mp4"
 EPISODE_TABLE = EPISODE_DIR + "/steps.parquet"
 EPISODE_META = EPISODE_DIR + "/meta.json"
@@ -16,6 +17,7 @@ EPISODE_META = EPISODE_DIR + "/meta.json"
 CORPUS_VIDEO = "corpus/seed_{seed:06d}/raw_{index:04d}.mp4"
 CORPUS_TRUTH = "corpus/seed_{seed:06d}/raw_{index:04d}.truth.json"
 
+ANALYSIS_FILE = "analysis/{sha256:.2}/{sha256}-{config_hash:.16}.json"
 CLIP_FILE = "clips/{source_id:.2}/{clip_id}.mp4"
 SHARD_FILE = "shards/{manifest_hash:.12}/{resolution}/{length}/part-{index:05d}.parquet"
 SHARD_MAX_BYTES = 256 * 1024 * 1024

@@ -1,0 +1,52 @@
+"""simulate: a scenario manifest -> N MuJoCo episodes (videos per camera, steps, metadata)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from prefect import flow, task
+
+from flows.recording import recorded_run
+from schemas.hashing import stable_id
+from schemas.records import LineageBatch, StageRunRecord
+from schemas.settings import Settings
+from tasks import manifests
+from tasks.sim import episode, files
+
+load_manifest = task(manifests.load, name="load-manifest")
+
+
+@task(name="simulate-episode", retries=1)
+def simulate_episode(manifest, manifest_hash: str, index: int, root: Path):
+    """Roll out one seed and write its files; returns the files and the episode outcome."""
+    result = episode.rollout(manifest, manifest.seed + index)
+    return files.write_episode(result, root, manifest_hash, index), result.success, result.reason
+
+
+@flow(name="simulate", log_prints=True)
+def simulate(manifest: str, episodes: int = 2) -> dict:
+    """Episodes 0..N-1 of a manifest use seeds seed..seed+N-1; finished episodes are skipped."""
+    settings = Settings()
+    scenario = load_manifest(Path(manifest))
+    with recorded_run("simulate", settings, scenario, source_uri=manifest,
+                      params={"manifest": manifest, "episodes": episodes}) as run:
+        keys = {stable_id("episode", run.manifest_hash, str(i)): i for i in range(episodes)}
+        todo = set(run.pending("simulate", list(keys)))
+        futures = {key: (time.perf_counter(), simulate_episode.submit(scenario, run.manifest_hash, i, settings.data_root))
+                   for key, i in keys.items() if key in todo}
+        outcomes = {}
+        for key, (t0, future) in futures.items():
+            written, success, reason = future.result()
+            stage = StageRunRecord(stage_run_id=run.stage_run_id("simulate", key), run_id=run.run_id,
+                                   stage="simulate", input_key=key, manifest_hash=run.manifest_hash,
+                                   n_in=1, n_out=1, seconds=round(time.perf_counter() - t0, 3),
+                                   attrs={"index": keys[key], "success": success, "reason": reason})
+            run.write(LineageBatch(stage_runs=[stage]).extend(
+                files.episode_lineage(written, run.manifest_hash, stage.stage_run_id, settings.data_root)))
+            outcomes[keys[key]] = (success, reason)
+        done = sorted(outcomes.items())
+        print(f"{scenario.name}: {len(done)} new episodes, {episodes - len(done)} already done; "
+              + ", ".join(f"#{i} {'success' if ok else 'failure'} ({why})" for i, (ok, why) in done))
+        return {"manifest_hash": run.manifest_hash, "new": len(done),
+                "successes": sum(ok for ok, _ in outcomes.values())}

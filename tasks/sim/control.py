@@ -1,0 +1,258 @@
+"""Scripted controllers with privileged state: bin pick and push for arms, aisle driving for bases.
+
+Each control step a controller reads the simulator state, picks the next commanded pose (or
+velocity), adds seeded noise, writes `data.ctrl` and returns the action it applied:
+- ee_delta: [dx, dy, dz (m), dyaw (rad), grip in [0, 1]] change of the commanded tcp pose;
+- velocity (arm): the same divided by the control period (m/s, rad/s), grip unchanged;
+- joint_position: [6 joint targets (rad), grip];
+- velocity (mobile base): [vx, vy] in m/s.
+The commanded tcp pose becomes joint targets by differential IK (damped least squares on
+mj_jacSite), converged from the measured joint angles on a scratch MjData.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+import mujoco
+from tasks.sim.kinematics import solve_ik, yaw_quat
+from tasks.sim.scene import Scene, rng_for
+from tasks.sim.stressors import FORKLIFT_LENGTH
+
+MAX_STEP = 0.012  # m per control step (0.6 m/s at 50 Hz)
+PUSH_STEP = 0.005
+MAX_YAW_STEP = 0.08
+NOISE_STEP = 0.01  # m: per-step std of commanded-pose noise at controller_noise = 1
+NOISE_AIM = 0.1  # m: std of the per-attempt aim error at controller_noise = 1
+FINGER_REACH = 0.018  # closed fingers' half thickness along the push direction
+
+
+def body_yaw(quat: np.ndarray) -> float:
+    w, x, y, z = quat
+    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+
+
+def _nearest_equivalent(angle: float, reference: float, period: float) -> float:
+    return angle + period * round((reference - angle) / period)
+
+
+class ArmController:
+    """Bin pick (approach, descend, close, lift, hold) or push (align, descend, push, retreat).
+
+    With `repeat`, the task cycles (put the package back, push it back) so long footage keeps
+    moving; episodes use repeat=False and end holding the result.
+    """
+
+    def __init__(self, scene: Scene, seed: int, repeat: bool = False):
+        m, arm = scene.model, scene.arm
+        self.scene, self.model, self.repeat = scene, m, repeat
+        self.task = scene.manifest.task.kind
+        self.space = scene.manifest.embodiment.action_space
+        self.noise = scene.manifest.task.controller_noise
+        self.rng = rng_for(seed, "controller")
+        self.dt = 1.0 / scene.config.control_hz
+        self.site = m.site("tcp").id
+        jids = [m.joint(j).id for j in arm.joints]
+        self.qadr = m.jnt_qposadr[jids]
+        self.dofs = m.jnt_dofadr[jids]
+        self.acts = np.array([m.actuator(a).id for a in arm.actuators])
+        self.grip_acts = np.array([m.actuator(a).id for a in arm.gripper_actuators], int)
+        self.grip_open = np.array(arm.gripper_open)
+        self.grip_closed = np.array(arm.gripper_closed)
+        self.body = m.body(scene.objects[0]).id
+        self.scratch = mujoco.MjData(m)
+        self.phase, self.phase_t, self.grip = "approach", 0.0, 0.0
+        self.bias = self._aim()
+        self.goal_xy = scene.goal[:2].copy()
+        self.start_xy: np.ndarray | None = None
+        self.target_pos = np.zeros(3)
+        self.target_yaw = 0.0
+        self.held = False
+
+    def _aim(self) -> np.ndarray:
+        return self.rng.normal(0.0, self.noise * NOISE_AIM, 2) if self.noise else np.zeros(2)
+
+    def reset(self, data: mujoco.MjData) -> None:
+        self.target_pos = data.site_xpos[self.site].copy()
+        quat = np.zeros(4)
+        mujoco.mju_mat2Quat(quat, data.site_xmat[self.site])
+        self.target_yaw = body_yaw(quat)
+        self.start_xy = data.xpos[self.body][:2].copy()
+
+    def _go(self, phase: str) -> None:
+        self.phase, self.phase_t = phase, 0.0
+
+    def _near(self, data, goal, tol) -> bool:
+        return float(np.linalg.norm(data.site_xpos[self.site] - goal)) < tol
+
+    def _bin_pick(self, data) -> tuple[np.ndarray, float, float, float]:
+        pkg = data.xpos[self.body]
+        yaw = _nearest_equivalent(body_yaw(data.xquat[self.body]), self.target_yaw, math.pi)
+        aim = pkg[:2] + self.bias
+        rest_z = self.scene.initial_qpos[self.model.jnt_qposadr[self.model.body_jntadr[self.body]] + 2]
+        lift_z = self.scene.rim_z + self.scene.manifest.evaluation.lift_height_m + 0.2
+        p, step = self.phase, MAX_STEP
+        if p == "approach":
+            goal, grip = np.array([*aim, pkg[2] + 0.15]), 0.0
+            if self._near(data, goal, 0.012) and abs(yaw - self.target_yaw) < 0.05:
+                self._go("descend")
+        elif p == "descend":
+            goal, grip, step = np.array([*aim, pkg[2] - 0.005]), 0.0, 0.008
+            if self._near(data, goal, 0.006) or self.phase_t > 1.5:
+                self._go("close")
+        elif p == "close":
+            goal, grip = self.target_pos.copy(), 1.0
+            if self.phase_t >= 0.35:
+                self._go("lift")
+        elif p in ("lift", "hold"):
+            goal, grip, yaw = np.array([*self.target_pos[:2], lift_z]), 1.0, self.target_yaw
+            if data.site_xpos[self.site][2] > self.scene.rim_z + 0.1 and pkg[2] < data.site_xpos[self.site][2] - 0.06:
+                self.bias = self._aim()  # dropped it: try again
+                self._go("approach")
+            elif p == "lift" and self._near(data, goal, 0.02):
+                self._go("hold")
+            elif p == "hold" and self.repeat and self.phase_t > 0.6:
+                self._go("lower")
+        elif p == "lower":
+            goal, grip, yaw = np.array([*self.scene.goal[:2], rest_z + 0.01]), 1.0, self.target_yaw
+            if self._near(data, goal, 0.01) or self.phase_t > 2.0:
+                self._go("release")
+        else:  # release, then retreat and start over
+            goal, grip, yaw = np.array([*self.target_pos[:2], rest_z + 0.2]), 0.0, self.target_yaw
+            if self.phase_t > 0.8:
+                self.bias = self._aim()
+                self._go("approach")
+        return goal, yaw, grip, step
+
+    def _push(self, data) -> tuple[np.ndarray, float, float, float]:
+        pkg = data.xpos[self.body][:2]
+        to_goal = self.goal_xy - pkg
+        dist = float(np.linalg.norm(to_goal))
+        u = to_goal / max(dist, 1e-9)
+        box_yaw = body_yaw(data.xquat[self.body])
+        half = self.scene.target_half
+        reach = abs(half[0] * math.cos(box_yaw - math.atan2(u[1], u[0]))) + abs(half[1] * math.sin(box_yaw - math.atan2(u[1], u[0])))
+        contact = pkg - u * (reach + FINGER_REACH + 0.004) + self.bias * 0.3
+        # Closed fingers make a paddle wide along hand x: face it along the push (hand y || u).
+        yaw = _nearest_equivalent(math.atan2(u[1], u[0]) - math.pi / 2, self.target_yaw, math.pi)
+        low, high = self.scene.rim_z + 0.025, self.scene.rim_z + 0.14
+        tcp = data.site_xpos[self.site]
+        lateral = abs(float(np.cross(u, tcp[:2] - contact)))
+        p, step, grip = self.phase, MAX_STEP, 1.0
+        if p == "approach":
+            goal = np.array([*(contact - u * 0.05), high])
+            if self._near(data, goal, 0.015) and abs(yaw - self.target_yaw) < 0.08:
+                self._go("descend")
+        elif p == "descend":
+            goal = np.array([*(contact - u * 0.05), low])
+            if self._near(data, goal, 0.008):
+                self._go("push")
+        elif p == "push":
+            goal, step = np.array([*(contact + u * 0.03), low]), PUSH_STEP
+            if dist < 0.3 * self.scene.manifest.evaluation.goal_tolerance_m:
+                self._go("retreat")
+            elif lateral > 0.03:
+                self._go("realign")
+        elif p == "realign":
+            goal = np.array([*(contact - u * 0.05), low])
+            if self._near(data, goal, 0.01):
+                self._go("push")
+            elif self.phase_t > 1.0:
+                self._go("approach")
+        else:  # retreat: lift clear; with repeat, push it back where it came from
+            goal, yaw = np.array([*tcp[:2], high]), self.target_yaw
+            if self.repeat and self.phase_t > 0.5:
+                self.goal_xy, self.start_xy = self.start_xy, self.goal_xy
+                self.bias = self._aim()
+                self._go("approach")
+        return goal, yaw, grip, step
+
+    def step(self, data: mujoco.MjData) -> np.ndarray:
+        """Choose, noise and apply one control step's action; returns the action applied."""
+        goal, yaw, grip, step = self._bin_pick(data) if self.task == "bin_pick" else self._push(data)
+        self.phase_t += self.dt
+        delta = goal - self.target_pos
+        norm = float(np.linalg.norm(delta))
+        if norm > step:
+            delta *= step / norm
+        dyaw = float(np.clip(yaw - self.target_yaw, -MAX_YAW_STEP, MAX_YAW_STEP))
+        if self.noise and self.space != "joint_position":
+            delta = delta + self.rng.normal(0.0, self.noise * NOISE_STEP, 3)
+            dyaw += float(self.rng.normal(0.0, self.noise * NOISE_STEP * 5))
+        self.target_pos = self.target_pos + delta
+        self.target_yaw += dyaw
+        self.grip = grip
+        q = solve_ik(self.model, data.qpos, self.site, self.qadr, self.dofs, self.target_pos,
+                     yaw_quat(self.target_yaw), iters=6, scratch=self.scratch)
+        if self.space == "joint_position":
+            if self.noise:
+                q = q + self.rng.normal(0.0, self.noise * 0.05, q.shape)
+            action = np.concatenate([q, [grip]])
+        elif self.space == "velocity":
+            action = np.concatenate([delta / self.dt, [dyaw / self.dt, grip]])
+        else:
+            action = np.concatenate([delta, [dyaw, grip]])
+        data.ctrl[self.acts] = q
+        if len(self.grip_acts):
+            data.ctrl[self.grip_acts] = self.grip_open + grip * (self.grip_closed - self.grip_open)
+        return action
+
+    def action_size(self) -> int:
+        return 7 if self.space == "joint_position" else 5
+
+
+class DriveController:
+    """Drives the base along the aisle to the goal, holding at a stop line while a forklift crosses."""
+
+    VMAX, ACCEL = 1.5, 1.5  # m/s, m/s^2
+
+    def __init__(self, scene: Scene, seed: int, repeat: bool = False):
+        m = scene.model
+        self.scene, self.model, self.repeat = scene, m, repeat
+        self.noise = scene.manifest.task.controller_noise
+        self.rng = rng_for(seed, "controller")
+        self.dt = 1.0 / scene.config.control_hz
+        self.qadr = m.jnt_qposadr[[m.joint(j).id for j in scene.base.joints]]
+        self.acts = np.array([m.actuator(a).id for a in scene.base.actuators])
+        self.goal_x, self.home_x = float(scene.goal[0]), 0.0
+        self.fork = scene.manifest.stressor("forklift_crossing")
+        self.fork_y: float | None = None
+        self.v = np.zeros(2)
+
+    def reset(self, data: mujoco.MjData) -> None:
+        self.home_x = float(data.qpos[self.qadr[0]])
+        self.fork_y = float(data.mocap_pos[0][1]) if self.fork else None
+
+    def _crossing_soon(self, data, x: float) -> bool:
+        if not self.fork:
+            return False
+        fy = float(data.mocap_pos[0][1])
+        speed = (fy - self.fork_y) / self.dt
+        self.fork_y = fy
+        # World y span of the forklift (forks lead along +y), projected one second ahead.
+        front, rear = fy + FORKLIFT_LENGTH * 0.73 + max(speed, 0.0) * 1.0, fy - FORKLIFT_LENGTH * 0.42
+        lane = self.scene.lane_x
+        in_lane_ahead = x < lane - 0.45 - 0.35 and x > lane - 4.0
+        return in_lane_ahead and front > -1.0 and rear < 1.0
+
+    def step(self, data: mujoco.MjData) -> np.ndarray:
+        x, y = (float(v) for v in data.qpos[self.qadr])
+        if self.repeat and abs(self.goal_x - x) < 0.1:
+            self.goal_x, self.home_x = self.home_x, self.goal_x
+        want = np.array([np.clip(1.5 * (self.goal_x - x), -self.VMAX, self.VMAX), -2.0 * y])
+        if self._crossing_soon(data, x):
+            stop = self.scene.lane_x - 0.45 - 0.35 - 0.25
+            want[0] = min(want[0], max(0.0, 2.0 * (stop - x)))
+        self.v = self.v + np.clip(want - self.v, -self.ACCEL * self.dt, self.ACCEL * self.dt)
+        action = self.v + (self.rng.normal(0.0, self.noise * 0.3, 2) if self.noise else 0.0)
+        data.ctrl[self.acts] = action
+        return np.asarray(action, float)
+
+    def action_size(self) -> int:
+        return 2
+
+
+def make_controller(scene: Scene, seed: int, repeat: bool = False) -> ArmController | DriveController:
+    return ArmController(scene, seed, repeat) if scene.arm is not None else DriveController(scene, seed, repeat)

@@ -1,0 +1,220 @@
+"""Roll out a manifest's task in MuJoCo and judge it from simulator state.
+
+`rollout(manifest, seed)` is pure: the same manifest, seed and config give bit-identical
+arrays and frames (single-threaded MuJoCo, seeded streams, no wall clock). Writing files and
+lineage lives in `tasks.sim.files` and is re-exported here.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+import tasks.sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+import mujoco
+from schemas.manifest import ScenarioManifest
+from tasks.sim.control import make_controller
+from tasks.sim.render import MultiCameraRenderer, jitter_angles
+from tasks.sim.scene import Scene, SimConfig, build_scene, rng_for
+from tasks.sim.stressors import FORKLIFT_LENGTH, FORKLIFT_PARK_Y, forklift_position
+
+
+@dataclass(frozen=True)
+class Episode:
+    """One rollout. T control steps (control_hz), F_c frames per camera (camera fps).
+
+    time (T,) s at the start of each step; joint_pos / joint_vel (T, J) of the robot's joints
+    (rad or m, rad/s or m/s) observed before the action; action (T, A) as applied (layout in
+    tasks.sim.control); object_pose (T, N, 7) xyz + quaternion wxyz; success_flag (T,) the
+    evaluation target holds at that step; estop (T,) an emergency stop has happened;
+    frames[camera] F_c x H x W x 3 uint8 RGB with frame_time[camera] (F_c,) s.
+    """
+
+    manifest: ScenarioManifest
+    seed: int
+    control_hz: float
+    joint_names: tuple[str, ...]
+    object_names: tuple[str, ...]
+    time: np.ndarray
+    joint_pos: np.ndarray
+    joint_vel: np.ndarray
+    action: np.ndarray
+    object_pose: np.ndarray
+    success_flag: np.ndarray
+    estop: np.ndarray
+    frames: dict[str, np.ndarray]
+    frame_time: dict[str, np.ndarray]
+    success: bool
+    reason: str
+    stressor_values: dict = field(default_factory=dict)
+
+    @property
+    def steps(self) -> int:
+        return int(self.time.shape[0])
+
+
+class Simulation:
+    """Physics, controller, forklift and e-stop for one scene; `advance` runs one control step.
+
+    cyclic_forklift makes the forklift come round again (for long footage): it reappears at
+    its parking spot, out of view, once it has driven as far past the lane as it started.
+    """
+
+    def __init__(self, scene: Scene, seed: int, repeat: bool = False, cyclic_forklift: bool = False):
+        self.scene, self.model = scene, scene.model
+        self.data = mujoco.MjData(self.model)
+        self.data.qpos[:] = scene.initial_qpos
+        self.data.ctrl[:] = scene.initial_ctrl
+        self.fork = scene.manifest.stressor("forklift_crossing")
+        self.cyclic = cyclic_forklift
+        if self.fork:
+            self.data.mocap_pos[0] = forklift_position(self.fork, scene.lane_x, 0.0)
+        mujoco.mj_forward(self.model, self.data)
+        self.controller = make_controller(scene, seed, repeat)
+        self.controller.reset(self.data)
+        self.substeps = max(1, round(1.0 / (scene.config.control_hz * scene.config.timestep)))
+        self.fork_body = self.model.body("forklift").id if self.fork else -1
+        self.estop_reason: str | None = None
+        self.last_action = np.zeros(self.controller.action_size())
+
+    def _fork_time(self, t: float) -> float:
+        if not self.cyclic:
+            return t
+        period = (2 * abs(FORKLIFT_PARK_Y) + FORKLIFT_LENGTH) / self.fork.speed_mps + 1.0
+        return self.fork.start_s + (t - self.fork.start_s) % period if t > self.fork.start_s else t
+
+    def _check_forklift(self) -> None:
+        d, m = self.data, self.model
+        if d.ncon == 0:
+            return
+        bodies = m.geom_bodyid[d.contact.geom[: d.ncon]]
+        hit = np.any(bodies == self.fork_body, axis=1)
+        floor = m.geom("floor").id
+        for i in np.flatnonzero(hit):
+            g1, g2 = d.contact.geom[i]
+            other = g2 if bodies[i, 0] == self.fork_body else g1
+            if other == floor:
+                continue
+            name = m.geom(other).name or m.body(m.geom_bodyid[other]).name or f"geom {other}"
+            self.estop_reason = f"emergency stop: forklift contact with {name} at t={d.time:.3f}s"
+            return
+
+    def advance(self, on_substep: Callable[[mujoco.MjData], None] | None = None) -> np.ndarray:
+        """One control step: act (or hold after an e-stop), then the physics substeps."""
+        if self.estop_reason is None:
+            self.last_action = self.controller.step(self.data)
+        else:
+            # Everything halts: the arm holds its joint targets, a base stops, the forklift parks.
+            if self.scene.base is not None:
+                self.data.ctrl[:] = 0.0
+            if self.scene.manifest.embodiment.action_space != "joint_position":
+                self.last_action = np.zeros_like(self.last_action)
+        for _ in range(self.substeps):
+            if self.fork and self.estop_reason is None:
+                self.data.mocap_pos[0] = forklift_position(self.fork, self.scene.lane_x, self._fork_time(self.data.time))
+            mujoco.mj_step(self.model, self.data)
+            if self.fork and self.estop_reason is None:
+                self._check_forklift()
+            if on_substep is not None:
+                on_substep(self.data)
+        return self.last_action.copy()
+
+
+def _target_holds(sim: Simulation, rest_z: float) -> bool:
+    scene, d, m = sim.scene, sim.data, sim.model
+    ev = scene.manifest.evaluation
+    if ev.target == "reach_goal":
+        return float(np.linalg.norm(d.qpos[sim.controller.qadr] - scene.goal[:2])) <= ev.goal_tolerance_m
+    body = m.body(scene.objects[0]).id
+    pos = d.xpos[body]
+    if ev.target == "push_to_goal":
+        return float(np.linalg.norm(pos[:2] - scene.goal[:2])) <= ev.goal_tolerance_m
+    # lift_clear: lifted by lift_height_m, lowest corner above the rim, touching only the robot.
+    corners = np.abs(d.xmat[body].reshape(3, 3)) @ scene.target_half
+    if pos[2] - rest_z < ev.lift_height_m or pos[2] - corners[2] <= scene.rim_z:
+        return False
+    robot = {m.body(b).id for b in scene.arm.link_bodies}
+    geoms = d.contact.geom[: d.ncon]
+    bodies = m.geom_bodyid[geoms]
+    for a, b in bodies:
+        if body in (a, b) and (b if a == body else a) not in robot:
+            return False
+    return bool(d.ncon) and bool(np.any(bodies == body))
+
+
+def jitter_phases(scene: Scene) -> dict[str, np.ndarray]:
+    """(3, 2) phases per camera; cameras sharing a wrist or vehicle mount shake together."""
+    rng = rng_for(scene.seed, "jitter")
+    by_mount = {"wrist": rng.uniform(0, 2 * math.pi, (3, 2)), "vehicle": rng.uniform(0, 2 * math.pi, (3, 2))}
+    return {c.name: by_mount.get(c.mount) if c.mount != "world" else rng.uniform(0, 2 * math.pi, (3, 2))
+            for c in scene.manifest.cameras}
+
+
+def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig()) -> Episode:
+    """Simulate the manifest's task for horizon_s and render every camera at its own fps."""
+    scene = build_scene(manifest, seed, config)
+    sim = Simulation(scene, seed)
+    m, d = sim.model, sim.data
+    steps = round(manifest.horizon_s * config.control_hz)
+    joints = [j for j in range(m.njnt) if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE]
+    qadr, vadr = m.jnt_qposadr[joints], m.jnt_dofadr[joints]
+    objs = [m.body(o).id for o in scene.objects]
+    rest_z = float(scene.initial_qpos[m.jnt_qposadr[m.body_jntadr[objs[0]]] + 2])
+    jitter = manifest.stressor("camera_jitter")
+    phases = jitter_phases(scene)
+    cams = manifest.cameras
+    n_frames = {c.name: int(math.floor(manifest.horizon_s * c.fps + 1e-9)) for c in cams}
+    frames = {c.name: np.zeros((n_frames[c.name], c.resolution[1], c.resolution[0], 3), np.uint8) for c in cams}
+    next_frame = {c.name: 0 for c in cams}
+    out = {k: [] for k in ("time", "qpos", "qvel", "action", "pose", "flag", "estop")}
+
+    with MultiCameraRenderer(m, {c.name: tuple(c.resolution) for c in cams}) as renderer:
+        def capture(data: mujoco.MjData) -> None:
+            for c in cams:
+                j = next_frame[c.name]
+                if j < n_frames[c.name] and data.time >= j / c.fps - 1e-9:
+                    angles = jitter_angles(jitter, phases[c.name], j / c.fps) if jitter else None
+                    frames[c.name][j] = renderer.render(data, c.name, angles)
+                    next_frame[c.name] = j + 1
+
+        capture(d)
+        for k in range(steps):
+            out["time"].append(k / config.control_hz)
+            out["qpos"].append(d.qpos[qadr].copy())
+            out["qvel"].append(d.qvel[vadr].copy())
+            out["pose"].append(np.concatenate([d.xpos[objs], d.xquat[objs]], axis=1))
+            out["flag"].append(_target_holds(sim, rest_z))
+            out["estop"].append(sim.estop_reason is not None)
+            out["action"].append(sim.advance(capture))
+    flag = np.array(out["flag"], bool)
+    success, reason = _verdict(sim, flag, rest_z)
+    return Episode(manifest=manifest, seed=seed, control_hz=config.control_hz,
+                   joint_names=tuple(m.joint(j).name for j in joints), object_names=scene.objects,
+                   time=np.array(out["time"]), joint_pos=np.array(out["qpos"]), joint_vel=np.array(out["qvel"]),
+                   action=np.array(out["action"]), object_pose=np.array(out["pose"]), success_flag=flag,
+                   estop=np.array(out["estop"], bool), frames=frames,
+                   frame_time={c.name: np.arange(n_frames[c.name]) / c.fps for c in cams},
+                   success=success, reason=reason, stressor_values=scene.stressor_values)
+
+
+def _verdict(sim: Simulation, flag: np.ndarray, rest_z: float) -> tuple[bool, str]:
+    """Success needs the target to hold after the last step and no e-stop at any time."""
+    final = _target_holds(sim, rest_z)
+    scene, ev = sim.scene, sim.scene.manifest.evaluation
+    if sim.estop_reason is not None:
+        return False, sim.estop_reason
+    if final:
+        return True, {"lift_clear": "package lifted clear of the bin", "push_to_goal": "package at goal",
+                      "reach_goal": "base at goal"}[ev.target]
+    d, m = sim.data, sim.model
+    if ev.target == "lift_clear":
+        pos = d.xpos[m.body(scene.objects[0]).id]
+        return False, f"package not held clear: {pos[2] - rest_z:.3f} m above rest (need {ev.lift_height_m} m)"
+    if ev.target == "push_to_goal":
+        gap = float(np.linalg.norm(d.xpos[m.body(scene.objects[0]).id][:2] - scene.goal[:2]))
+        return False, f"package {gap:.3f} m from goal (tolerance {ev.goal_tolerance_m} m)"
+    gap = float(np.linalg.norm(d.qpos[sim.controller.qadr] - scene.goal[:2]))
+    return False, f"base {gap:.3f} m from goal (tolerance {ev.goal_tolerance_m} m)"

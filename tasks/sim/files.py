@@ -1,0 +1,102 @@
+"""Episode files, LeRobot-like: an H.264 MP4 per camera, a Parquet table of steps, meta.json."""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from schemas import paths
+from schemas.hashing import sha256_file, stable_id
+from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord
+from tasks.mp4 import write_mp4
+
+
+@dataclass(frozen=True)
+class EpisodeFiles:
+    index: int
+    seed: int
+    directory: Path
+    videos: dict[str, Path]
+    table: Path
+    meta: Path
+    success: bool
+    reason: str
+    steps: int
+    stressor_values: dict
+
+
+def _steps_table(ep) -> pa.Table:
+    columns = {
+        "step": pa.array(np.arange(ep.steps, dtype=np.int64)),
+        "time": pa.array(ep.time.astype(np.float64)),
+        "joint_pos": pa.array(list(ep.joint_pos.astype(np.float64)), pa.list_(pa.float64())),
+        "joint_vel": pa.array(list(ep.joint_vel.astype(np.float64)), pa.list_(pa.float64())),
+        "action": pa.array(list(ep.action.astype(np.float64)), pa.list_(pa.float64())),
+        "success_flag": pa.array(ep.success_flag),
+        "estop": pa.array(ep.estop),
+    }
+    for k, name in enumerate(ep.object_names):
+        columns[f"pose.{name}"] = pa.array(list(ep.object_pose[:, k].astype(np.float64)), pa.list_(pa.float64(), 7))
+    meta = {"joint_names": json.dumps(list(ep.joint_names)), "control_hz": str(ep.control_hz)}
+    return pa.table(columns).replace_schema_metadata(meta)
+
+
+def _atomic(path: Path, write) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    write(tmp)
+    os.replace(tmp, path)
+
+
+def write_episode(ep, root: Path, manifest_hash: str, index: int, crf: int = 20) -> EpisodeFiles:
+    """Write one episode under EPISODE_DIR; meta.json is written last and marks it complete."""
+    fields = dict(manifest_hash=manifest_hash, index=index)
+    directory = paths.resolve(root, paths.EPISODE_DIR, **fields)
+    directory.mkdir(parents=True, exist_ok=True)
+    videos = {}
+    for camera, frames in ep.frames.items():
+        fps = next(c.fps for c in ep.manifest.cameras if c.name == camera)
+        videos[camera] = write_mp4(paths.resolve(root, paths.EPISODE_VIDEO, camera=camera, **fields), frames, fps, crf)
+    table = paths.resolve(root, paths.EPISODE_TABLE, **fields)
+    _atomic(table, lambda p: pq.write_table(_steps_table(ep), p, compression="zstd"))
+    meta = paths.resolve(root, paths.EPISODE_META, **fields)
+    body = {"manifest_hash": manifest_hash, "index": index, "seed": ep.seed, "success": bool(ep.success),
+            "reason": ep.reason, "steps": ep.steps, "control_hz": ep.control_hz,
+            "stressors": ep.stressor_values, "cameras": sorted(videos), "task": ep.manifest.task.kind}
+    _atomic(meta, lambda p: p.write_text(json.dumps(body, sort_keys=True, indent=1, default=float)))
+    return EpisodeFiles(index=index, seed=ep.seed, directory=directory, videos=videos, table=table, meta=meta,
+                        success=bool(ep.success), reason=ep.reason, steps=ep.steps,
+                        stressor_values=dict(ep.stressor_values))
+
+
+def episode_lineage(files: EpisodeFiles, manifest_hash: str, stage_run_id: str, root: Path | None = None) -> LineageBatch:
+    """manifest -> episode (its step table) -> one episode_video per camera, with success metrics."""
+    def uri(path: Path) -> str:
+        return str(path.relative_to(root)) if root else str(path)
+
+    table_sha = sha256_file(str(files.table))
+    episode_id = stable_id("episode", manifest_hash, str(files.index), table_sha)
+    attrs = {"index": files.index, "seed": files.seed, "success": files.success, "reason": files.reason,
+             "stressors": files.stressor_values, "meta": uri(files.meta)}
+    batch = LineageBatch(
+        artifacts=[ArtifactRecord(artifact_id=episode_id, kind="episode", uri=uri(files.table), sha256=table_sha,
+                                  bytes=files.table.stat().st_size, manifest_hash=manifest_hash,
+                                  stage_run_id=stage_run_id, attrs=attrs)],
+        edges=[EdgeRecord(parent_id=manifest_hash, child_id=episode_id, relation="simulated_from")],
+        metrics=[MetricRecord(subject_id=episode_id, name=name, value=value, stage_run_id=stage_run_id,
+                              manifest_hash=manifest_hash)
+                 for name, value in (("success", float(files.success)), ("steps", float(files.steps)))],
+    )
+    for camera, video in sorted(files.videos.items()):
+        sha = sha256_file(str(video))
+        vid = stable_id("episode_video", sha)
+        batch.artifacts.append(ArtifactRecord(artifact_id=vid, kind="episode_video", uri=uri(video), sha256=sha,
+                                              bytes=video.stat().st_size, manifest_hash=manifest_hash,
+                                              stage_run_id=stage_run_id, attrs={"camera": camera, **attrs}))
+        batch.edges.append(EdgeRecord(parent_id=episode_id, child_id=vid, relation="rendered"))
+    return batch

@@ -1,0 +1,276 @@
+"""Build the MuJoCo model of a ScenarioManifest in code (mujoco.MjSpec), from a seed.
+
+Layout (metres, world z up, robot base at the origin facing +x):
+- bin_pick: a bin centred at (0.45, 0) on the floor, packages inside it.
+- push: a conveyor-like table centred at (0.45, 0), top at z=0.10; the package starts near
+  y=-0.14 and the green goal marker lies near y=+0.13.
+- drive: an aisle along +x between two runs of racks; the goal is 6 m ahead.
+A forklift lane runs along y at x = lane_m (distance from the robot base). Every random
+choice draws from a stream named after its purpose, so adding one stressor never shifts
+the draws of another.
+"""
+
+from __future__ import annotations
+
+import zlib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+import mujoco
+from schemas.manifest import Camera, ScenarioManifest
+from schemas.manifest import Frozen
+from tasks.sim import robots, stressors
+from tasks.sim.kinematics import solve_ik, yaw_quat
+
+G = mujoco.mjtGeom
+BIN_CENTRE = np.array([0.45, 0.0])
+BIN_INNER, BIN_WALL, BIN_HEIGHT, BIN_FLOOR = 0.13, 0.012, 0.10, 0.01
+TABLE_TOP = 0.10
+PACKAGE_HALF = np.array([0.04, 0.03, 0.03])
+AISLE_GOAL_X = 6.0
+NORMAL_LUX = 500.0
+
+
+class SimConfig(Frozen):
+    """Physics and asset settings that are not part of a manifest's meaning."""
+
+    timestep: float = 0.002
+    control_hz: float = 50.0
+    robots_root: Path = Path("../shared/data/robots")
+    gripper_mjcf: str | None = "robotiq_2f85/2f85.xml"
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A compiled model plus the handles and layout facts the controller and judge need."""
+
+    model: mujoco.MjModel
+    manifest: ScenarioManifest
+    seed: int
+    config: SimConfig
+    arm: robots.ArmSpec | None
+    base: robots.BaseSpec | None
+    objects: tuple[str, ...]  # free bodies whose poses are recorded; objects[0] is the target
+    target_half: np.ndarray  # (3,) half sizes of the target box
+    goal: np.ndarray  # (3,) push goal or drive goal; for bin_pick the lift point above the bin
+    rim_z: float  # top of the bin walls (bin_pick) or table top (push)
+    lane_x: float | None  # forklift lane, None without a forklift
+    initial_qpos: np.ndarray
+    initial_ctrl: np.ndarray
+    stressor_values: dict = field(default_factory=dict)
+
+
+def rng_for(seed: int, purpose: str) -> np.random.Generator:
+    return np.random.default_rng([seed, zlib.crc32(purpose.encode())])
+
+
+def look_quat(position, look_at, up=(0.0, 0.0, 1.0)) -> np.ndarray:
+    """Quaternion of a MuJoCo camera (looks along its -z, y up) at position facing look_at."""
+    fwd = np.asarray(look_at, float) - np.asarray(position, float)
+    fwd /= np.linalg.norm(fwd)
+    right = np.cross(fwd, up)
+    if np.linalg.norm(right) < 1e-6:  # looking along `up`: let image-up point along +x
+        right = np.cross(fwd, (1.0, 0.0, 0.0))
+    right /= np.linalg.norm(right)
+    quat = np.zeros(4)
+    mujoco.mju_mat2Quat(quat, np.column_stack([right, np.cross(-fwd, right), -fwd]).ravel())
+    return quat
+
+
+def _add_cameras(spec: mujoco.MjSpec, cameras: tuple[Camera, ...], where: str) -> None:
+    for cam in cameras:
+        if cam.mount == "world":
+            parent = spec.worldbody
+        else:
+            parent = spec.body("ee" if cam.mount == "wrist" else "base")
+            if parent is None:
+                raise ValueError(f"{where}: camera {cam.name!r} is mounted on the {cam.mount}, "
+                                 f"which this embodiment does not have")
+        parent.add_camera(name=cam.name, pos=list(cam.position), quat=list(look_quat(cam.position, cam.look_at)),
+                          fovy=cam.fovy_deg, resolution=list(cam.resolution))
+
+
+def _box(body, name, pos, half, material=None, rgba=None):
+    # An explicit rgba would override the material's colour, so pass one only without material.
+    geom = body.add_geom(name=name, type=G.mjGEOM_BOX, pos=list(pos), size=list(half))
+    if material:
+        geom.material = material
+    else:
+        geom.rgba = list(rgba)
+    return geom
+
+
+def _add_bin(spec, material):
+    wb, (cx, cy) = spec.worldbody, BIN_CENTRE
+    outer = BIN_INNER + BIN_WALL
+    _box(wb, "bin_floor", (cx, cy, BIN_FLOOR / 2), (outer, outer, BIN_FLOOR / 2), material)
+    h = BIN_HEIGHT / 2
+    for name, pos, half in (("bin_wall_px", (cx + outer - BIN_WALL / 2, cy, h), (BIN_WALL / 2, outer, h)),
+                            ("bin_wall_nx", (cx - outer + BIN_WALL / 2, cy, h), (BIN_WALL / 2, outer, h)),
+                            ("bin_wall_py", (cx, cy + outer - BIN_WALL / 2, h), (outer, BIN_WALL / 2, h)),
+                            ("bin_wall_ny", (cx, cy - outer + BIN_WALL / 2, h), (outer, BIN_WALL / 2, h))):
+        _box(wb, name, pos, half, material)
+
+
+def _add_racks(spec, material, x_ranges, y):
+    """Warehouse racks: uprights and three shelves per run, on both sides (|y|) of an aisle."""
+    for i, (x0, x1) in enumerate(x_ranges):
+        for side in (-1, 1):
+            cx, cy = (x0 + x1) / 2, side * y
+            for level in (0.05, 0.75, 1.45):
+                _box(spec.worldbody, None, (cx, cy, level), ((x1 - x0) / 2, 0.4, 0.025), material)
+            for ux in np.arange(x0, x1 + 1e-6, 1.5):
+                _box(spec.worldbody, None, (ux, cy, 1.0), (0.04, 0.4, 1.0), None, (0.2, 0.3, 0.6, 1))
+
+
+def _add_package(spec, name, pos, yaw, half, material):
+    body = spec.worldbody.add_body(name=name, pos=list(pos), quat=list(yaw_quat(yaw)))
+    body.add_freejoint()
+    body.add_geom(name=f"{name}_geom", type=G.mjGEOM_BOX, size=list(half), material=material,
+                  mass=0.15, friction=[1.0, 0.01, 0.001], condim=4)
+    return body.name
+
+
+def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig()) -> Scene:
+    """Compile the manifest's scene for this seed (same inputs, same model, bit for bit)."""
+    where = f"manifest {manifest.name}"
+    kind, task = manifest.embodiment.kind, manifest.task.kind
+    if kind == "vehicle":
+        raise ValueError(f"{where}: embodiment kind 'vehicle' is not simulated; use 'arm' or 'mobile'")
+    if (kind == "mobile") != (task == "drive"):
+        raise ValueError(f"{where}: task {task!r} does not fit embodiment {kind!r} (drive needs mobile)")
+    spec = mujoco.MjSpec()
+    spec.compiler.degree = False
+    spec.option.timestep = config.timestep
+    spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    spec.visual.global_.offwidth = max(c.resolution[0] for c in manifest.cameras)
+    spec.visual.global_.offheight = max(c.resolution[1] for c in manifest.cameras)
+    look = manifest.stressor("appearance")
+    arng = rng_for(seed, "appearance") if look else None
+    layout = rng_for(seed, "layout")
+    values = {s.kind: s.model_dump(exclude={"kind"}) for s in manifest.stressors}
+
+    floor = stressors.add_material(spec, "floor_mat", (0.42, 0.42, 0.4), arng, look, (12, 12), checker=True)
+    spec.worldbody.add_geom(name="floor", type=G.mjGEOM_PLANE, size=[12, 12, 0.1], material=floor)
+    spec.worldbody.add_light(name="sun", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[0.5, 0.5, 4],
+                             dir=[-0.3, -0.2, -1], diffuse=[0.6] * 3, ambient=[0.25] * 3, specular=[0.1] * 3,
+                             castshadow=False)
+    spec.visual.headlight.ambient = [0.15] * 3
+    spec.visual.headlight.diffuse = [0.3] * 3
+    package_mat = stressors.add_material(spec, "package_mat", (0.62, 0.45, 0.26), arng, look, (2, 2))
+    names = [_safe(o, i) for i, o in enumerate(manifest.task.objects)]
+    arm = base = None
+    if kind == "arm":
+        if manifest.embodiment.mjcf:
+            root = Path(config.robots_root)
+            gripper = root / config.gripper_mjcf if config.gripper_mjcf else None
+            arm = robots.add_mjcf_arm(spec, root / manifest.embodiment.mjcf, gripper)
+        else:
+            arm = robots.add_builtin_arm(spec)
+    else:
+        base = robots.add_mobile_base(spec)
+
+    keep_out: list[tuple[float, float, float]] = [(0.0, 0.0, 0.2)]
+    if task == "bin_pick":
+        _add_bin(spec, stressors.add_material(spec, "bin_mat", (0.15, 0.3, 0.65), arng, look))
+        start = BIN_CENTRE + layout.uniform(-0.03, 0.03, 2)
+        rest_z = BIN_FLOOR + PACKAGE_HALF[2] + 0.001
+        yaw = float(layout.uniform(-0.5, 0.5))
+        rim_z = BIN_HEIGHT
+        goal = np.array([*BIN_CENTRE, rim_z + 0.25])
+        extra_xy = [BIN_CENTRE + np.array([0.0, 0.3]), BIN_CENTRE + np.array([0.0, -0.3]), BIN_CENTRE + np.array([0.3, 0.0])]
+        extra_z = PACKAGE_HALF[2]
+        region, dz = (0.2, 0.95, -0.65, 0.65), 0.0
+        keep_out.append((*BIN_CENTRE, BIN_INNER * 1.5 + 0.03))
+    elif task == "push":
+        table = stressors.add_material(spec, "table_mat", (0.22, 0.22, 0.24), arng, look, (4, 6), checker=True)
+        _box(spec.worldbody, "table", (0.45, 0.0, TABLE_TOP / 2), (0.2, 0.35, TABLE_TOP / 2), table)
+        start = np.array([0.45, -0.14]) + layout.uniform(-0.02, 0.02, 2)
+        rest_z = TABLE_TOP + PACKAGE_HALF[2] + 0.001
+        yaw = float(layout.uniform(-0.2, 0.2))
+        rim_z = TABLE_TOP
+        goal = np.array([0.45 + layout.uniform(-0.03, 0.03), 0.13 + layout.uniform(-0.02, 0.02), TABLE_TOP])
+        spec.worldbody.add_geom(name="goal_marker", type=G.mjGEOM_CYLINDER, pos=[*goal[:2], TABLE_TOP + 0.0005],
+                                size=[manifest.evaluation.goal_tolerance_m, 0.0005, 0], rgba=[0.1, 0.8, 0.2, 1],
+                                contype=0, conaffinity=0)
+        extra_xy = [np.array([0.3, -0.25]), np.array([0.6, -0.25]), np.array([0.3, 0.28])]
+        extra_z = TABLE_TOP + PACKAGE_HALF[2]
+        region, dz = (0.27, 0.63, -0.32, 0.32), TABLE_TOP
+        keep_out += [(*start, 0.08), (*goal[:2], 0.08), ((start[0] + goal[0]) / 2, 0.0, 0.08)]
+    else:
+        lane = manifest.stressor("forklift_crossing")
+        gap = (lane.lane_m - 1.6, lane.lane_m + 1.6) if lane else (99.0, 99.0)
+        runs = [(x0, x1) for x0, x1 in ((-2.0, min(gap[0], 8.0)), (max(gap[1], -2.0), 8.0)) if x1 - x0 > 0.5]
+        _add_racks(spec, stressors.add_material(spec, "rack_mat", (0.85, 0.5, 0.1), arng, look), runs, 1.4)
+        goal = np.array([AISLE_GOAL_X, 0.0, 0.0])
+        spec.worldbody.add_geom(name="goal_marker", type=G.mjGEOM_BOX, pos=[AISLE_GOAL_X, 0, 0.001],
+                                size=[0.05, 0.9, 0.001], rgba=[0.1, 0.8, 0.2, 1], contype=0, conaffinity=0)
+        shelf = 0.775  # top of the middle shelf
+        start, yaw, rest_z, rim_z = np.array([1.0, 1.4]), 0.0, shelf + PACKAGE_HALF[2] + 0.001, 0.0
+        extra_xy = [np.array([x, -1.4]) for x in (0.0, 5.5, 7.0)]
+        extra_z = shelf + PACKAGE_HALF[2]
+        region, dz = (0.5, 5.5, -0.95, 0.95), 0.0
+        keep_out = [(x, 0.0, 0.45) for x in np.arange(-0.5, AISLE_GOAL_X + 0.6, 0.5)]
+    target_pos = np.array([*start, rest_z])
+    objects = [_add_package(spec, names[0], target_pos, yaw, PACKAGE_HALF, package_mat)]
+    for i, name in enumerate(names[1:]):
+        xy = extra_xy[i % len(extra_xy)] + layout.uniform(-0.02, 0.02, 2)
+        objects.append(_add_package(spec, name, (*xy, extra_z + 0.001), float(layout.uniform(-1, 1)), PACKAGE_HALF, package_mat))
+
+    fork = manifest.stressor("forklift_crossing")
+    if fork:
+        stressors.add_forklift(spec, fork, fork.lane_m)
+    if manifest.stressor("occluder"):
+        primary = next((c for c in manifest.cameras if c.mount == "world"), manifest.cameras[0])
+        cam_pos = np.array(primary.position) if primary.mount == "world" else target_pos + np.array([0.6, 0.0, 0.6])
+        stressors.add_occluder(spec, manifest.stressor("occluder"), cam_pos, target_pos, PACKAGE_HALF, yaw)
+    if manifest.stressor("distractors"):
+        objects += stressors.add_distractors(spec, manifest.stressor("distractors"), rng_for(seed, "distractors"),
+                                             region, dz, keep_out)
+    _add_cameras(spec, manifest.cameras, where)
+    dim = manifest.stressor("dim_light")
+    _scale_lights(spec, (dim.lux if dim else NORMAL_LUX) / NORMAL_LUX)
+    model = spec.compile()
+    qpos, ctrl = _initial_state(model, arm, target_pos)
+    return Scene(model=model, manifest=manifest, seed=seed, config=config, arm=arm, base=base,
+                 objects=tuple(objects), target_half=PACKAGE_HALF.copy(), goal=goal, rim_z=rim_z,
+                 lane_x=fork.lane_m if fork else None, initial_qpos=qpos, initial_ctrl=ctrl, stressor_values=values)
+
+
+def _safe(name: str, index: int) -> str:
+    clean = "".join(ch if ch.isalnum() else "_" for ch in name.lower())[:24] or "object"
+    return f"{clean}_{index}" if index else clean
+
+
+def _scale_lights(spec: mujoco.MjSpec, scale: float) -> None:
+    # Lux maps linearly onto light colour: 500 lux (a lit warehouse) is the nominal rig.
+    scale = float(np.clip(scale, 0.0, 3.0))
+    for light in spec.lights:
+        light.diffuse = list(np.asarray(light.diffuse) * scale)
+        light.ambient = list(np.asarray(light.ambient) * scale)
+        light.specular = list(np.asarray(light.specular) * scale)
+    head = spec.visual.headlight
+    head.ambient = list(np.asarray(head.ambient) * scale)
+    head.diffuse = list(np.asarray(head.diffuse) * scale)
+
+
+def _initial_state(model: mujoco.MjModel, arm: robots.ArmSpec | None, target: np.ndarray):
+    qpos, ctrl = model.qpos0.copy(), np.zeros(model.nu)
+    if arm is None:
+        return qpos, ctrl
+    qadr = np.array([model.jnt_qposadr[model.joint(j).id] for j in arm.joints])
+    dofs = np.array([model.jnt_dofadr[model.joint(j).id] for j in arm.joints])
+    qpos[qadr] = arm.home
+    # Home: the tcp 0.25 m above and 0.15 m short of the target, pointing straight down.
+    home = np.array([target[0] - 0.15, target[1] * 0.5, max(target[2], 0.1) + 0.25])
+    qpos[qadr] = solve_ik(model, qpos, model.site("tcp").id, qadr, dofs, home, yaw_quat(0.0))
+    for name, q in zip(arm.actuators, qpos[qadr]):
+        ctrl[model.actuator(name).id] = q
+    for name, value in zip(arm.gripper_actuators, arm.gripper_open):
+        ctrl[model.actuator(name).id] = value
+        joint = model.actuator(name).trnid[0]
+        if model.actuator_trntype[model.actuator(name).id] == mujoco.mjtTrn.mjTRN_JOINT:
+            qpos[model.jnt_qposadr[joint]] = value
+    return qpos, ctrl

@@ -1,0 +1,29 @@
+from pathlib import Path
+
+from flows.simulate import simulate
+from schemas.settings import Settings
+from warehouse import audit
+from warehouse.store import Warehouse
+
+from tests.support import MANIFESTS
+
+
+def _small_manifest(tmp_path: Path) -> Path:
+    text = (MANIFESTS / "conveyor_push.yaml").read_text()
+    path = tmp_path / "small.yaml"
+    path.write_text(text.replace("horizon_s: 5.0", "horizon_s: 1.0").replace("[128, 128]", "[64, 64]"))
+    return path
+
+
+def test_simulate_records_episodes_and_skips_finished_ones(prefect_harness, data_root, tmp_path):
+    manifest = _small_manifest(tmp_path)
+    assert simulate(str(manifest), 2)["new"] == 2
+    assert simulate(str(manifest), 3)["new"] == 1
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, kinds = wh.query("SELECT kind, count(*) FROM artifacts GROUP BY kind ORDER BY kind")
+        _, video = wh.query("SELECT artifact_id FROM artifacts WHERE kind = 'episode_video' LIMIT 1")
+        sql, _ = audit.bind("ancestry", {"artifact": "x"})
+        _, chain = wh.query(sql, {"artifact": video[0][0]})
+    assert dict(kinds) == {"episode": 3, "episode_video": 3, "manifest": 1}
+    assert [r[1] for r in chain] == ["episode_video", "episode", "manifest"]
+    assert len(list((data_root / "episodes").rglob("meta.json"))) == 3
