@@ -154,6 +154,17 @@ def register(paths: list[Path]) -> None:
 
 
 @app.command()
+def simulate(manifest: Path, episodes: int = typer.Option(2, min=1, max=10_000, help="episodes (seeds seed..seed+N-1)")) -> None:
+    """Simulate a manifest's task in MuJoCo and write episodes (Prefect flow `simulate`)."""
+    _load_or_exit(manifest)
+    from flows.simulate import simulate as simulate_flow
+
+    result = simulate_flow(str(manifest), episodes)
+    out.print(f"{result['new']} new episodes ({result['successes']} successes) under {result['manifest_hash'][:12]}",
+              highlight=False)
+
+
+@app.command()
 def demo() -> None:
     """Run the whole loop on built-in generated data, then print a lineage summary."""
     from flows.demo import demo as demo_flow
@@ -162,14 +173,87 @@ def demo() -> None:
     summary()
 
 
+@app.command()
+def server(port: Optional[int] = typer.Option(None, help="API port on 127.0.0.1; a free one when omitted"),
+           pool: str = typer.Option("worldline-local", help="process work pool the worker polls"),
+           deploy: bool = typer.Option(True, "--deploy/--no-deploy", help="apply prefect.yaml (prefect deploy --all)")) -> None:
+    """Start a local Prefect server (with UI) and a process worker on 127.0.0.1 until Ctrl-C."""
+    from flows.server import StackError, serve
+
+    try:
+        serve(port=port, pool=pool, deploy=deploy)
+    except StackError as exc:
+        _fail(str(exc), 1)
+
+
 def _not_built(step: str, issue: int) -> None:
     _fail(f"worldline {step}: not built yet (tracked in issue {issue})", EXIT_NOT_BUILT)
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-def curate() -> None:
-    """Curate raw videos into Parquet shards (not built yet)."""
-    _not_built("curate", 4)
+@app.command()
+def curate(
+    inputs: list[Path] = typer.Argument(..., help="video files or folders of videos"),
+    manifest: Optional[Path] = typer.Option(None, help="scenario manifest the footage belongs to"),
+    config: Optional[Path] = typer.Option(None, help="YAML overrides of CurateConfig"),
+) -> None:
+    """Curate raw videos into Parquet shards (Prefect flow `curate`); exit 1 if inputs were quarantined."""
+    if manifest is not None:
+        _load_or_exit(manifest)
+    from flows.curate import curate as curate_flow
+
+    result = curate_flow([str(p) for p in inputs], str(manifest) if manifest else None, str(config) if config else None)
+    out.print(f"{result['status']}: {result['clips']} clips in {len(result['shards'])} shards, "
+              f"{result['failed']} of {result['inputs']} inputs quarantined", highlight=False)
+    if result["failed"]:
+        raise typer.Exit(1)
+
+
+def _video_or_exit(video: Path):
+    from tasks.curate.decode import DecodeError, probe
+
+    try:
+        return probe(video)
+    except DecodeError as exc:
+        _fail(str(exc))
+
+
+@app.command()
+def scenes(video: Path, as_json: bool = typer.Option(False, "--json", help="print JSON"),
+           config: Optional[Path] = typer.Option(None, help="YAML overrides of CurateConfig")) -> None:
+    """Print the scenes the curate flow detects (start and end frame and time), with its own code."""
+    from tasks.curate.config import load_config
+    from tasks.curate.scenes import detect_scenes
+
+    _video_or_exit(video)
+    cfg = load_config(config)
+    found = [s.summary() for s in detect_scenes(video, cfg.scenes, cfg.analysis, include_rejected=True)]
+    if as_json:
+        out.print_json(json.dumps({"video": str(video), "scenes": found}))
+    else:
+        _print_rows(list(found[0]) if found else ["kind"], [tuple(s.values()) for s in found], "table", str(video))
+
+
+@app.command()
+def inspect(video: Path, as_json: bool = typer.Option(False, "--json", help="print JSON"),
+            config: Optional[Path] = typer.Option(None, help="YAML overrides of CurateConfig"),
+            manifest: Optional[Path] = typer.Option(None, help="scenario manifest for captions")) -> None:
+    """Each scene's scores, tags, caption and verdict, exactly as the curate flow decides them."""
+    from schemas.hashing import sha256_file
+    from tasks.curate.analyse import analyse_video
+    from tasks.curate.config import load_config
+
+    _video_or_exit(video)
+    scenario = _load_or_exit(manifest) if manifest else None
+    result = analyse_video(video, sha256_file(str(video)), load_config(config), scenario)
+    rows = [{"clip_id": c.clip_id, "start_frame": c.start_frame, "end_frame": c.end_frame,
+             "start_s": round(c.start_s, 3), "end_s": round(c.end_s, 3), "kept": c.kept,
+             "stage": c.reject_stage, "reason": c.reject_reason, "tags": list(c.tags),
+             "scores": {k: round(v, 4) for k, v in c.scores.items()}, "caption": c.caption} for c in result.clips]
+    if as_json:
+        out.print_json(json.dumps({"video": str(video), "clips": rows, "decode": result.decode}))
+    else:
+        cols = ["start_frame", "end_frame", "kept", "stage", "reason", "tags", "caption"]
+        _print_rows(cols, [tuple(r[c] for c in cols) for r in rows], "table", str(video))
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})

@@ -6,12 +6,26 @@ from pathlib import Path
 
 from prefect import flow
 
+from flows.curate import curate
 from flows.register import register
+from flows.simulate import simulate
+from schemas import paths
+from schemas.settings import Settings
 
 MANIFESTS = Path(__file__).resolve().parent.parent / "manifests"
+# Simulated and then curated: normal light, and dim light (which the quality filter rejects).
+DEMO = {"conveyor_push.yaml": 3, "bin_pick_dim_forklift.yaml": 2}
 
 
 @flow(name="demo", log_prints=True)
-def demo() -> None:
+def demo() -> list[dict]:
+    """Register every manifest, simulate episodes, curate their camera videos per manifest."""
     for path in sorted(MANIFESTS.glob("*.yaml")):
         register(str(path))
+    results = []
+    for name, episodes in DEMO.items():
+        manifest = str(MANIFESTS / name)
+        digest = simulate(manifest, episodes=episodes)["manifest_hash"]
+        folder = paths.resolve(Settings().data_root, paths.EPISODES_OF_MANIFEST, manifest_hash=digest)
+        results.append(curate([str(folder)], manifest))
+    return results

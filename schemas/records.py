@@ -160,3 +160,16 @@ class ShardRecord(Record):
     length_bucket: str
     clip_ids: tuple[str, ...]
     manifest_hash: str | None = None
+
+
+def raw_video_id(sha256: str) -> str:
+    """A raw video is identified by its bytes: the same file under two names is one artifact."""
+    from schemas.hashing import stable_id
+
+    return stable_id("raw_video", sha256)
+
+
+def clip_id(source_sha256: str, start_frame: int, end_frame: int) -> str:
+    from schemas.hashing import stable_id
+
+    return stable_id("clip", source_sha256, str(start_frame), str(end_frame))

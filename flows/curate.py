@@ -1,0 +1,170 @@
+"""curate: raw videos -> one decode each (scenes, filters, captions, signatures) -> dedup
+-> encode kept clips -> Parquet shards. Every input, clip and shard lands in lineage."""
+
+from __future__ import annotations
+
+import time
+from collections import Counter, defaultdict
+from pathlib import Path
+
+from prefect import flow, task
+from prefect.artifacts import create_markdown_artifact
+
+from flows.recording import RunContext, recorded_run
+from schemas import paths
+from schemas.hashing import sha256_file, stable_id
+from schemas.manifest import ScenarioManifest
+from schemas.records import ClipRecord, LineageBatch, StageRunRecord
+from schemas.settings import Settings
+from tasks import manifests
+from tasks.curate import analyse, dedup, lineage, shards
+from tasks.curate.config import CurateConfig, load_config
+from tasks.curate.decode import DecodeError
+from tasks.curate.encode import encode_clips
+from tasks.curate.inputs import Input, discover
+
+load_manifest = task(manifests.load, name="load-manifest")
+analyse_video = task(analyse.analyse_video, name="analyse-video", retries=0)
+encode_video = task(encode_clips, name="encode-clips", retries=1)
+write_shards = task(shards.write_shards, name="write-shards", retries=1)
+
+
+def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: float, **attrs) -> StageRunRecord:
+    return StageRunRecord(stage_run_id=run.stage_run_id(stage, key), run_id=run.run_id, stage=stage, input_key=key,
+                          manifest_hash=run.manifest_hash, n_in=n_in, n_out=n_out,
+                          seconds=round(time.perf_counter() - t0, 3), attrs=attrs)
+
+
+def _quarantine(run: RunContext, item: Input, stage: str, reason: str, detail: str) -> None:
+    key = stable_id("quarantine", str(item.path), item.sha256 or "")
+    run.write(lineage.quarantined(str(item.path), item.sha256, stage, reason, detail, run.manifest_hash,
+                                  run.stage_run_id(stage, key)))
+    run.fail_input(f"{item.path}: {detail}")
+    print(f"quarantined {item.path}: {detail}")
+
+
+def analyse_all(run: RunContext, inputs: list[Input], config: CurateConfig,
+                manifest: ScenarioManifest | None) -> list[analyse.VideoAnalysis]:
+    """Each video decoded once, in parallel; finished ones come from the cache (no decode)."""
+    root = run.settings.data_root
+    config_hash = config.analysis_hash()
+    keys = {stable_id(item.sha256, config_hash, run.manifest_hash or ""): item for item in inputs}
+    done = set(keys) - set(run.pending("analyse", list(keys)))
+    results, futures = [], {}
+    for key, item in keys.items():
+        cache = paths.resolve(root, paths.ANALYSIS_FILE, sha256=item.sha256, config_hash=config_hash)
+        cached = analyse.load(cache) if key in done else None
+        if cached is not None:
+            cached.source = str(item.path)
+            results.append(cached)
+        else:
+            futures[key] = (item, cache, time.perf_counter(),
+                            analyse_video.submit(item.path, item.sha256, config, manifest, run.manifest_hash))
+    for key, (item, cache, t0, future) in futures.items():
+        try:
+            result = future.result()
+        except DecodeError as exc:
+            _quarantine(run, item, "decode", "unreadable", str(exc))
+            continue
+        except Exception as exc:  # a batch never dies on one video
+            _quarantine(run, item, "analyse", type(exc).__name__, f"{item.path}: {exc}")
+            continue
+        analyse.save(result, cache)
+        stage = _stage(run, "analyse", key, 1, len(result.clips), t0, source=str(item.path), **result.decode)
+        rejected = [c for c in result.clips if not c.kept]
+        batch = LineageBatch(stage_runs=[stage]).extend(
+            lineage.raw_video(str(item.path), item.sha256, item.bytes, run.manifest_hash, stage.stage_run_id,
+                              {"info": result.info, "decode": result.decode})).extend(
+            lineage.clips(rejected, stage.stage_run_id))
+        run.write(batch)
+        results.append(result)
+    return sorted(results, key=lambda r: r.source)
+
+
+def deduplicate(run: RunContext, analyses: list[analyse.VideoAnalysis], config: CurateConfig) -> list[ClipRecord]:
+    t0 = time.perf_counter()
+    kept = [c for a in analyses for c in a.clips if c.kept]
+    signatures = {cid: s for a in analyses for cid, s in a.signatures.items()}
+    result = dedup.group(signatures, {c.clip_id: dedup.quality_key(c, config.dedup) for c in kept}, config.dedup)
+    judged = dedup.apply(kept, signatures, result)
+    key = stable_id("dedup", *sorted(signatures), config.analysis_hash())
+    stage = _stage(run, "dedup", key, len(kept), len(result.kept), t0, groups=len(result.groups))
+    removed = [c for c in judged if not c.kept]
+    run.write(LineageBatch(stage_runs=[stage]).extend(lineage.clips(removed, stage.stage_run_id)))
+    return [c for c in judged if c.kept]
+
+
+def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -> list[ClipRecord]:
+    """Kept clips only, one forward pass per source; files already encoded are reused."""
+    root = run.settings.data_root
+    by_source: dict[str, list[ClipRecord]] = defaultdict(list)
+    for clip in clips:
+        by_source[clip.source_uri].append(clip)
+    futures, out = [], []
+    for source, group in sorted(by_source.items()):
+        group.sort(key=lambda c: c.start_frame)
+        targets = [paths.resolve(root, paths.CLIP_FILE, source_id=c.source_id, clip_id=c.clip_id) for c in group]
+        key = stable_id("encode", group[0].source_id, config.encode_hash(), *(c.clip_id for c in group))
+        if not run.pending("encode", [key]) and all(t.exists() for t in targets):
+            out.extend(_with_file(c, t, root) for c, t in zip(group, targets))
+            continue
+        spans = [(c.start_frame, c.end_frame) for c in group]
+        futures.append((key, group, targets, time.perf_counter(), encode_video.submit(source, spans, targets, config.encode)))
+    for key, group, targets, t0, future in futures:
+        try:
+            future.result()
+        except Exception as exc:
+            run.fail_input(f"{group[0].source_uri}: encoding failed: {exc}")
+            continue
+        encoded = [_with_file(c, t, root) for c, t in zip(group, targets)]
+        stage = _stage(run, "encode", key, len(group), len(encoded), t0, source=group[0].source_uri)
+        run.write(LineageBatch(stage_runs=[stage]).extend(lineage.clips(encoded, stage.stage_run_id)))
+        out.extend(encoded)
+    return out
+
+
+def _with_file(clip: ClipRecord, target: Path, root: Path) -> ClipRecord:
+    return clip.model_copy(update={"uri": str(target.relative_to(root)), "sha256": sha256_file(str(target)),
+                                   "bytes": target.stat().st_size})
+
+
+def publish(run: RunContext, counts: Counter, n_shards: int, inputs: int) -> str:
+    lines = ["| stage | outcome | clips |", "|---|---|---|"]
+    lines += [f"| {stage} | {outcome} | {n} |" for (stage, outcome), n in sorted(counts.items())]
+    text = (f"## curate: {inputs} inputs, {len(run.failures)} quarantined, {n_shards} shards\n\n" + "\n".join(lines))
+    create_markdown_artifact(markdown=text, key="curate-summary", description="clips kept and rejected by reason")
+    return text
+
+
+@flow(name="curate", log_prints=True)
+def curate(inputs: list[str], manifest: str | None = None, config: str | None = None) -> dict:
+    """Curate the videos in `inputs` (files or folders) under an optional scenario manifest."""
+    settings = Settings()
+    cfg = load_config(Path(config) if config else None)
+    scenario = load_manifest(Path(manifest)) if manifest else None
+    with recorded_run("curate", settings, scenario, source_uri=manifest,
+                      params={"inputs": inputs, "manifest": manifest, "config": config}) as run:
+        found = discover(inputs)
+        for item in found:
+            if item.problem:
+                _quarantine(run, item, "input", "unusable", f"{item.path}: {item.problem}")
+        analyses = analyse_all(run, [i for i in found if not i.problem], cfg, scenario)
+        unique = deduplicate(run, analyses, cfg)
+        encoded = encode_all(run, unique, cfg)
+        t0 = time.perf_counter()
+        written = write_shards(encoded, settings.data_root, run.manifest_hash or "unscoped", cfg.shards)
+        key = stable_id("shards", *(s.sha256 for s in written))
+        run.write(LineageBatch(stage_runs=[_stage(run, "shard", key, len(encoded), len(written), t0)]).extend(
+            shards.shard_lineage(written, run.stage_run_id("shard", key))))
+        counts = Counter(("kept", "encoded") for _ in encoded)
+        for a in analyses:
+            counts.update((c.reject_stage, c.reject_reason) for c in a.clips if not c.kept)
+        counts[("dedup", "duplicate")] = len([c for a in analyses for c in a.clips if c.kept]) - len(unique)
+        publish(run, counts, len(written), len(found))
+        if run.failures:
+            run.message = f"partial: {len(run.failures)} of {len(found)} inputs failed"
+        summary = {"run_id": run.run_id, "status": run.status, "inputs": len(found), "failed": len(run.failures),
+                   "clips": len(encoded), "shards": [s.uri for s in written], "manifest_hash": run.manifest_hash,
+                   "counts": {f"{s}/{r}": n for (s, r), n in sorted(counts.items())}}
+    print(summary)
+    return summary

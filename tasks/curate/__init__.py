@@ -1,0 +1,1 @@
+"""Curation stages: decode once, split scenes, filter, caption, dedup, encode, shard."""

@@ -1,0 +1,59 @@
+"""CurateConfig: every stage's frozen config in one contract, hashed into each input key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import BaseModel, ConfigDict
+
+from schemas.hashing import content_hash
+from tasks.curate.captions import CaptionConfig
+from tasks.curate.decode import AnalysisConfig
+from tasks.curate.dedup import DedupConfig
+from tasks.curate.encode import EncodeConfig
+from tasks.curate.motion import MotionConfig
+from tasks.curate.overlay_text import OverlayTextConfig
+from tasks.curate.quality import QualityConfig
+from tasks.curate.scenes import SceneConfig
+from tasks.curate.shards import ShardConfig
+from tasks.curate.video_type import VideoTypeConfig
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
+
+
+class CurateConfig(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    analysis: AnalysisConfig = AnalysisConfig()
+    scenes: SceneConfig = SceneConfig()
+    motion: MotionConfig = MotionConfig()
+    quality: QualityConfig = QualityConfig()
+    overlay_text: OverlayTextConfig = OverlayTextConfig()
+    video_type: VideoTypeConfig = VideoTypeConfig()
+    captions: CaptionConfig = CaptionConfig()
+    dedup: DedupConfig = DedupConfig(quality_score="sharpness")
+    encode: EncodeConfig = EncodeConfig()
+    shards: ShardConfig = ShardConfig()
+
+    def filters(self):
+        return self.motion, self.quality, self.overlay_text, self.video_type
+
+    def analysis_hash(self) -> str:
+        """What decides a video's analysis result (not encoding or sharding)."""
+        return content_hash(self.model_dump(mode="json", include={
+            "analysis", "scenes", "motion", "quality", "overlay_text", "video_type", "captions", "dedup"}))
+
+    def encode_hash(self) -> str:
+        return content_hash(self.encode.model_dump(mode="json"))
+
+
+def load_config(path: Path | None) -> CurateConfig:
+    """A YAML file of overrides (safe loading), or the defaults."""
+    if path is None:
+        return CurateConfig()
+    import yaml
+
+    data = yaml.safe_load(Path(path).read_text()) or {}
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: curate config must be a mapping")
+    return CurateConfig.model_validate(data)

@@ -1,0 +1,336 @@
+"""Probe a source video and decode it once into small analysis frames.
+
+Frame numbers everywhere in curation are 0-based decoded-frame indices in presentation
+order: frame ``i`` is the frame with the ``i``-th smallest packet pts of the video stream
+(packets the demuxer marks as discard, e.g. edit-list pre-roll, are not frames). The index
+comes from the packet timestamps, not from a counter, so a frame that fails to decode
+leaves a gap instead of shifting every later index, and ``encode.py`` can seek and still
+find the same frames.
+"""
+
+from __future__ import annotations
+
+import heapq
+from collections.abc import Iterator
+from dataclasses import dataclass, field
+from fractions import Fraction
+from pathlib import Path
+from typing import Literal
+
+import av
+import numpy as np
+from av.video.reformatter import VideoReformatter
+from pydantic import BaseModel, ConfigDict, Field
+
+MAX_SIDE = 16384
+MAX_FPS = 1000.0
+PROBE_PACKETS = 240  # enough packets to see irregular timestamps and a decodable frame
+
+
+class DecodeError(ValueError):
+    """One line: the file and the problem."""
+
+
+class SourceInfo(BaseModel):
+    """What a video declares, checked for sanity. Sizes in pixels, times in seconds.
+
+    ``width`` x ``height`` is the decoded frame size; ``display_width`` x ``display_height``
+    is what a player shows: width stretched by the sample aspect ratio, then swapped when the
+    rotation is 90 or 270 degrees. ``rotation`` is counter-clockwise degrees in {0, 90, 180,
+    270} (the display matrix, as PyAV's ``VideoFrame.rotation`` reports it).
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    path: Path
+    n_frames: int = Field(ge=0, description="container's frame count, or duration x fps")
+    fps: float = Field(gt=0, description="average frame rate")
+    duration: float = Field(ge=0)
+    width: int = Field(gt=0)
+    height: int = Field(gt=0)
+    display_width: int = Field(gt=0)
+    display_height: int = Field(gt=0)
+    rotation: Literal[0, 90, 180, 270] = 0
+    sar: float = Field(1.0, gt=0, description="sample (pixel) aspect ratio, width / height")
+    codec: str
+    vfr: bool = False
+
+
+class AnalysisConfig(BaseModel):
+    """How the analysis pass decodes and downscales."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    long_side: int = Field(256, ge=16, le=4096, description="long side of analysis frames; never upscaled")
+    thread_type: Literal["AUTO", "FRAME", "SLICE", "NONE"] = "AUTO"
+    threads: int = Field(0, ge=0, le=64, description="decoder threads; 0 lets FFmpeg choose")
+    interpolation: Literal["AREA", "BILINEAR", "FAST_BILINEAR", "BICUBIC"] = "AREA"
+    # H.264 deblocking is a third of decode time and changes a 256-px analysis frame by
+    # about one grey level on 0..255 (measured on corpus-like 720p at crf 23), so analysis
+    # skips it; clips are always encoded from fully decoded frames.
+    skip_loop_filter: bool = True
+
+
+@dataclass(frozen=True, slots=True)
+class AnalysisFrame:
+    """One decoded frame: ``image`` is h x w x 3 uint8 RGB in display orientation."""
+
+    index: int
+    time: float  # seconds since the stream start, from the frame's pts
+    image: np.ndarray
+
+
+@dataclass(slots=True)
+class DecodeReport:
+    """Filled in while ``analysis_frames`` runs; read it after the iterator is exhausted."""
+
+    frames: int = 0  # frames yielded
+    decode_errors: int = 0  # packets the decoder refused
+    corrupt: int = 0  # frames the decoder flagged corrupt (skipped)
+    missing: int = 0  # indices that never came out of the decoder (gaps)
+    truncated: bool = False  # the demuxer stopped on an error before the end
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def skipped(self) -> int:
+        return self.corrupt + self.missing
+
+
+def _rate(stream) -> Fraction | None:
+    for rate in (stream.average_rate, stream.guessed_rate, stream.base_rate):
+        if rate is not None and rate > 0:
+            return Fraction(rate)
+    return None
+
+
+def open_video(path: Path | str):
+    """An open PyAV input container with a video stream, or DecodeError naming the problem."""
+    path = Path(path)
+    if not path.exists():
+        raise DecodeError(f"{path}: no such file")
+    if not path.is_file():
+        raise DecodeError(f"{path}: not a regular file")
+    if path.stat().st_size == 0:
+        raise DecodeError(f"{path}: empty file (0 bytes)")
+    try:
+        container = av.open(str(path))
+    except av.FFmpegError as error:
+        raise DecodeError(f"{path}: not a readable video ({error.strerror or error})") from None
+    if not container.streams.video:
+        container.close()
+        raise DecodeError(f"{path}: no video stream")
+    return container
+
+
+def _irregular(pts: list[int]) -> bool:
+    steps = np.diff(np.sort(np.asarray(pts, dtype=np.int64)))
+    steps = steps[steps > 0]
+    if steps.size < 2:
+        return False
+    median = float(np.median(steps))
+    return bool(np.any(np.abs(steps - median) > 0.02 * median + 1))
+
+
+def probe(path: Path | str) -> SourceInfo:
+    """Read the header and the first packets; raise DecodeError naming the file and problem.
+
+    Decodes at most one frame (to read the rotation and prove the stream decodes), so it is
+    cheap enough to run before any heavy work.
+    """
+    path = Path(path)
+    container = open_video(path)
+    try:
+        stream = container.streams.video[0]
+        ctx = stream.codec_context
+        width, height = int(ctx.width or 0), int(ctx.height or 0)
+        if not (0 < width <= MAX_SIDE and 0 < height <= MAX_SIDE):
+            raise DecodeError(f"{path}: absurd frame size {width}x{height}")
+        rate = _rate(stream)
+        if rate is None or not 0 < float(rate) <= MAX_FPS:
+            raise DecodeError(f"{path}: absurd or missing frame rate {rate}")
+        fps = float(rate)
+        tb = stream.time_base
+        if stream.duration is not None and tb is not None and stream.duration > 0:
+            duration = float(stream.duration * tb)
+        elif container.duration is not None and container.duration > 0:
+            duration = container.duration / av.time_base
+        else:
+            duration = 0.0
+        n_frames = int(stream.frames) if stream.frames > 0 else int(round(duration * fps))
+        sar_value = stream.sample_aspect_ratio or ctx.sample_aspect_ratio
+        sar = float(sar_value) if sar_value and sar_value > 0 else 1.0
+        if not 0.1 <= sar <= 10.0:
+            raise DecodeError(f"{path}: absurd sample aspect ratio {sar_value}")
+
+        rotation, pts = None, []
+        try:
+            for packet in container.demux(stream):
+                if packet.size == 0:
+                    continue
+                if packet.pts is not None and not packet.is_discard:
+                    pts.append(packet.pts)
+                if rotation is None:
+                    try:
+                        frames = packet.decode()
+                    except av.FFmpegError:
+                        frames = []
+                    if frames:
+                        rotation = int(round(frames[0].rotation / 90.0)) * 90 % 360
+                if len(pts) >= PROBE_PACKETS and rotation is not None:
+                    break
+        except av.FFmpegError as error:
+            if rotation is None:
+                raise DecodeError(f"{path}: unreadable stream ({error.strerror or error})") from None
+        if rotation is None:
+            raise DecodeError(f"{path}: no decodable frame in the first {len(pts)} packets")
+        # An average rate that disagrees with the container's base rate is how FFmpeg shows a
+        # variable frame rate it saw over the whole file; irregular steps catch the rest.
+        base = stream.base_rate
+        vfr = _irregular(pts) or bool(base and abs(float(base) - fps) > 0.01 * fps)
+        codec = ctx.name
+    finally:
+        container.close()
+
+    display_w = max(1, int(round(width * sar)))
+    display_h = height
+    if rotation in (90, 270):
+        display_w, display_h = display_h, display_w
+    return SourceInfo(
+        path=path, n_frames=n_frames, fps=fps, duration=duration, width=width, height=height,
+        display_width=display_w, display_height=display_h, rotation=rotation, sar=sar,
+        codec=codec, vfr=vfr,
+    )
+
+
+def analysis_size(info: SourceInfo, long_side: int) -> tuple[int, int]:
+    """(width, height) of analysis frames in display orientation: long side at most ``long_side``."""
+    dw, dh = info.display_width, info.display_height
+    scale = min(1.0, long_side / max(dw, dh))
+    return max(1, int(round(dw * scale))), max(1, int(round(dh * scale)))
+
+
+def frame_pts(path: Path | str) -> tuple[np.ndarray, np.ndarray, Fraction, int]:
+    """Demux without decoding: (pts per frame index, sorted int64; key-frame pts, sorted;
+    stream time base; stream start pts). Raises DecodeError when packets carry no pts."""
+    path = Path(path)
+    container = open_video(path)
+    pts, keys = [], []
+    try:
+        stream = container.streams.video[0]
+        try:
+            for packet in container.demux(stream):
+                if packet.size == 0 or packet.is_discard:
+                    continue
+                if packet.pts is None:
+                    raise DecodeError(f"{path}: packets without timestamps")
+                pts.append(packet.pts)
+                if packet.is_keyframe:
+                    keys.append(packet.pts)
+        except av.FFmpegError:
+            pass  # a truncated tail: the frames before it are still indexed
+        start = stream.start_time if stream.start_time is not None else (min(pts) if pts else 0)
+        return np.sort(np.asarray(pts, np.int64)), np.sort(np.asarray(keys, np.int64)), stream.time_base, start
+    finally:
+        container.close()
+
+
+def _packets(container, stream, report: DecodeReport, path: Path) -> Iterator:
+    try:
+        yield from container.demux(stream)
+    except av.FFmpegError as error:
+        report.truncated = True
+        report.problems.append(f"{path}: demux stopped early ({error.strerror or error})")
+
+
+def analysis_frames(
+    path: Path | str,
+    config: AnalysisConfig = AnalysisConfig(),
+    report: DecodeReport | None = None,
+    info: SourceInfo | None = None,
+) -> Iterator[AnalysisFrame]:
+    """Decode every frame once, downscaled in libswscale and rotated to display orientation.
+
+    Yields AnalysisFrame(index, time, image) with image h x w x 3 uint8 RGB, h and w from
+    ``analysis_size``. Memory is one frame plus the decoder's own buffers. Packets the decoder
+    rejects and frames it flags corrupt are skipped and counted in ``report``.
+    """
+    path = Path(path)
+    info = info or probe(path)
+    report = report if report is not None else DecodeReport()
+    aw, ah = analysis_size(info, config.long_side)
+    turns = info.rotation // 90
+    sw, sh = (ah, aw) if turns % 2 else (aw, ah)
+    container = open_video(path)
+    try:
+        stream = container.streams.video[0]
+        stream.thread_type = config.thread_type
+        stream.thread_count = config.threads
+        if config.skip_loop_filter:
+            stream.codec_context.options = {"skip_loop_filter": "all"}
+        tb = stream.time_base
+        start = stream.start_time or 0
+        reformatter = VideoReformatter()
+        pending: list[int] = []  # pts demuxed but not yet decoded
+        counted = 0  # frame indices handed out or found missing
+        step = 1.0 / info.fps
+        last_time: float | None = None
+
+        def emit(frame) -> AnalysisFrame | None:
+            nonlocal counted, last_time
+            if frame.pts is not None and pending and pending[0] <= frame.pts:
+                while pending and pending[0] < frame.pts:
+                    heapq.heappop(pending)
+                    counted += 1
+                    report.missing += 1
+                if pending and pending[0] == frame.pts:
+                    heapq.heappop(pending)
+                time = float((frame.pts - start) * tb)
+            else:  # no usable pts: trust the decoder's order
+                time = 0.0 if last_time is None else last_time + step
+            index = counted
+            counted += 1
+            if frame.is_corrupt or (last_time is not None and time <= last_time):  # or a repeated pts
+                report.corrupt += 1
+                return None
+            last_time = time
+            small = reformatter.reformat(frame, sw, sh, "rgb24", interpolation=config.interpolation)
+            image = small.to_ndarray()
+            if turns:
+                image = np.ascontiguousarray(np.rot90(image, k=turns))
+            report.frames += 1
+            return AnalysisFrame(index=index, time=time, image=image)
+
+        for packet in _packets(container, stream, report, path):
+            if packet.size == 0:
+                continue
+            if packet.pts is not None and not packet.is_discard:
+                heapq.heappush(pending, packet.pts)
+            try:
+                frames = packet.decode()
+            except av.FFmpegError:
+                report.decode_errors += 1
+                continue
+            for frame in frames:
+                item = emit(frame)
+                if item is not None:
+                    yield item
+        try:
+            frames = stream.decode(None)
+        except av.FFmpegError:
+            frames = []
+            report.decode_errors += 1
+        for frame in frames:
+            item = emit(frame)
+            if item is not None:
+                yield item
+        report.missing += len(pending)
+    finally:
+        container.close()
+    if report.frames == 0:
+        raise DecodeError(f"{path}: no frame could be decoded")
+    if report.decode_errors or report.skipped:
+        report.problems.append(
+            f"{path}: skipped {report.skipped} frames ({report.corrupt} corrupt, "
+            f"{report.missing} missing; {report.decode_errors} packets rejected)"
+        )
+

@@ -1,0 +1,258 @@
+"""Re-encode spans of a source video to H.264 MP4 clips, all spans of a source in one pass.
+
+Frame numbers are the decoded-frame indices of ``decode.py`` (frame i has the i-th smallest
+packet pts), so a span found by the analysis pass maps to exactly the same frames here even
+after a seek. Clips are written in display orientation with square pixels and even sizes
+(yuv420p needs them). With a fixed ``threads`` count x264 is deterministic, so the same
+input and config give byte-identical clips; each clip is written to a temporary file and
+renamed into place, so a crash never leaves a half-written clip under its final name.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Sequence
+from fractions import Fraction
+from pathlib import Path
+from typing import Literal
+
+import av
+import numpy as np
+from av.video.frame import PictureType
+from pydantic import BaseModel, ConfigDict, Field
+
+from tasks.curate.decode import DecodeError, SourceInfo, frame_pts, open_video, probe
+
+
+class EncodeConfig(BaseModel):
+    """x264 settings for clips."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    preset: Literal["ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow"] = "veryfast"
+    crf: int = Field(23, ge=0, le=51)
+    threads: int = Field(1, ge=1, le=16, description="x264 threads; fixed, since the bytes depend on it")
+    x264_params: str = Field("", description="extra x264 options, e.g. 'keyint=60'")
+    decode_threads: int = Field(0, ge=0, le=64, description="decoder threads (0: FFmpeg chooses)")
+    # x264's AVX-512 functions read memory they never wrote: on an AVX-512 CPU the same
+    # frames gave 8 different clips in 8 runs (64x48) while x264 limited to AVX2 gave one.
+    # The limit costs about a quarter of x264's speed on such CPUs (49 vs 67 fps at 720p).
+    reproducible: bool = Field(True, description="keep x264 off AVX-512 so clips are byte-identical")
+
+
+# x264's names for the instruction sets below AVX-512, and the /proc/cpuinfo flag of each.
+X264_CPU_NAMES = (("MMX2", "sse"), ("SSE2", "sse2"), ("SSE3", "pni"), ("SSSE3", "ssse3"), ("SSE4", "sse4_1"),
+                  ("SSE4.2", "sse4_2"), ("AVX", "avx"), ("FMA3", "fma"), ("BMI1", "bmi1"), ("BMI2", "bmi2"),
+                  ("AVX2", "avx2"), ("LZCNT", "abm"), ("Cache64", "clflush"))
+
+
+def x264_cpu_limit(cpuinfo: str | None = None) -> str | None:
+    """x264's ``asm=`` value that keeps this CPU's instruction sets but AVX-512, or None
+    when there is nothing to limit (no AVX-512, or not a Linux x86 machine)."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            return None
+    line = next((row for row in cpuinfo.splitlines() if row.startswith("flags")), "")
+    flags = set(line.partition(":")[2].split())
+    if "avx512f" not in flags:
+        return None
+    return ",".join(name for name, flag in X264_CPU_NAMES if flag in flags)
+
+
+def x264_options(config: EncodeConfig) -> dict[str, str]:
+    """The encoder options clips are written with (a benchmark baseline should use them too)."""
+    params = [config.x264_params] if config.x264_params else []
+    limit = x264_cpu_limit() if config.reproducible else None
+    if limit:
+        params.append(f"asm={limit}")
+    options = {"preset": config.preset, "crf": str(config.crf)}
+    if params:
+        options["x264-params"] = ":".join(params)
+    return options
+
+
+class EncodedClip(BaseModel):
+    """One written clip; ``frames`` counts the frames actually encoded."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    path: Path
+    sha256: str
+    bytes: int
+    frames: int
+    width: int
+    height: int
+    start_frame: int
+    end_frame: int
+
+
+def output_size(info: SourceInfo) -> tuple[int, int]:
+    """Even (width, height) of clips in display orientation."""
+    return max(2, info.display_width // 2 * 2), max(2, info.display_height // 2 * 2)
+
+
+class _Writer:
+    """An open output clip: encoder, muxer and temporary path."""
+
+    def __init__(self, out: Path, info: SourceInfo, src_stream, config: EncodeConfig):
+        self.out = Path(out)
+        self.out.parent.mkdir(parents=True, exist_ok=True)
+        self.tmp = self.out.with_name(f".{self.out.name}.{os.getpid()}.tmp")
+        self.container = av.open(str(self.tmp), "w", format="mp4")
+        self.width, self.height = output_size(info)
+        self.stream = self.container.add_stream("libx264", rate=Fraction(info.fps).limit_denominator(1001))
+        self.stream.width, self.stream.height, self.stream.pix_fmt = self.width, self.height, "yuv420p"
+        self.stream.codec_context.time_base = src_stream.time_base
+        self.stream.codec_context.thread_count = config.threads
+        src = src_stream.codec_context
+        for name in ("color_range", "colorspace", "color_primaries", "color_trc"):
+            setattr(self.stream.codec_context, name, getattr(src, name))
+        self.stream.options = x264_options(config)
+        self.first_pts: int | None = None
+        self.frames = 0
+
+    def write(self, frame: av.VideoFrame) -> None:
+        """Encode ``frame`` (shared between writers: its pts is restored afterwards)."""
+        if self.first_pts is None:
+            self.first_pts = frame.pts
+        pts = frame.pts
+        frame.pts = pts - self.first_pts
+        frame.pict_type = PictureType.NONE  # else x264 copies the source's frame types
+        try:
+            for packet in self.stream.encode(frame):
+                self.container.mux(packet)
+        finally:
+            frame.pts = pts
+        self.frames += 1
+
+    def close(self, start: int, end: int) -> EncodedClip:
+        for packet in self.stream.encode():
+            self.container.mux(packet)
+        self.container.close()
+        if self.frames == 0:
+            self.tmp.unlink(missing_ok=True)
+            raise DecodeError(f"{self.out}: no frame of the span [{start}, {end}) could be decoded")
+        digest = hashlib.sha256()
+        with open(self.tmp, "rb") as handle:
+            for block in iter(lambda: handle.read(1 << 20), b""):
+                digest.update(block)
+        size = self.tmp.stat().st_size
+        os.replace(self.tmp, self.out)
+        return EncodedClip(path=self.out, sha256=digest.hexdigest(), bytes=size, frames=self.frames,
+                           width=self.width, height=self.height, start_frame=start, end_frame=end)
+
+    def abort(self) -> None:
+        try:
+            self.container.close()
+        except av.FFmpegError:
+            pass
+        self.tmp.unlink(missing_ok=True)
+
+
+def _to_display(frame: av.VideoFrame, info: SourceInfo, size: tuple[int, int]) -> av.VideoFrame:
+    """The frame as the encoder wants it: yuv420p, display orientation, even size."""
+    turns = info.rotation // 90
+    width, height = size if turns % 2 == 0 else size[::-1]
+    if frame.format.name == "yuv420p" and (frame.width, frame.height) == (width, height) and not turns:
+        return frame  # the common case costs nothing
+    pts, time_base = frame.pts, frame.time_base
+    if turns:
+        rgb = frame.reformat(width, height, "rgb24").to_ndarray()
+        out = av.VideoFrame.from_ndarray(np.ascontiguousarray(np.rot90(rgb, k=turns)), format="rgb24")
+        out = out.reformat(format="yuv420p")
+    else:
+        out = frame.reformat(width, height, "yuv420p", interpolation="AREA")
+    out.pts, out.time_base = pts, time_base
+    return out
+
+
+def encode_clips(source: Path | str, spans: Sequence[tuple[int, int]], out_paths: Sequence[Path | str],
+                 config: EncodeConfig = EncodeConfig(), info: SourceInfo | None = None) -> list[EncodedClip]:
+    """Encode each span [start_frame, end_frame) of ``source`` to its path, in one forward pass.
+
+    Spans may come in any order and may overlap. Between spans the decoder seeks to the
+    last key frame before the next span when that skips at least one key frame; otherwise it
+    decodes through. Returns the clips in the order of ``spans``.
+    """
+    source = Path(source)
+    if len(spans) != len(out_paths):
+        raise ValueError(f"{source}: {len(spans)} spans but {len(out_paths)} output paths")
+    info = info or probe(source)
+    pts, keys, _, _ = frame_pts(source)
+    for start, end in spans:
+        if not 0 <= start < end <= len(pts):
+            raise ValueError(f"{source}: span [{start}, {end}) outside frames [0, {len(pts)})")
+    order = sorted(range(len(spans)), key=lambda j: spans[j])
+    size = output_size(info)
+    results: dict[int, EncodedClip] = {}
+    writers: dict[int, _Writer] = {}
+    container = open_video(source)
+    frames = None
+    try:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        stream.thread_count = config.decode_threads
+        waiting = list(order)  # spans not yet started, by start frame
+        position = -1  # index of the last frame decoded
+        while waiting or writers:
+            if not writers:
+                # Idle between spans: seek when a key frame lies between here and the next span.
+                start = spans[waiting[0]][0]
+                key = int(np.searchsorted(keys, pts[start], side="right")) - 1 if len(keys) else -1
+                key_index = int(np.searchsorted(pts, keys[key])) if key >= 0 else 0
+                if frames is None or key_index > position + 1:
+                    if frames is not None:
+                        frames.close()
+                    if key_index > position + 1:
+                        container.seek(int(keys[key]), stream=stream, backward=True)
+                        position = key_index - 1
+                    frames = _frames(container, stream)
+            frame = next(frames, None)
+            if frame is None:
+                break
+            index = int(np.searchsorted(pts, frame.pts)) if frame.pts is not None else position + 1
+            if index >= len(pts) or pts[index] != frame.pts or index <= position:
+                continue  # pre-roll of a seek, or a frame the index does not know
+            position = index
+            while waiting and spans[waiting[0]][0] <= index:
+                j = waiting.pop(0)
+                writers[j] = _Writer(Path(out_paths[j]), info, stream, config)
+            for j in [j for j in writers if spans[j][1] <= index]:
+                results[j] = writers.pop(j).close(*spans[j])
+            if writers:
+                shown = _to_display(frame, info, size)
+                for writer in writers.values():
+                    writer.write(shown)
+        for j in list(writers):
+            results[j] = writers.pop(j).close(*spans[j])
+        if waiting:
+            raise DecodeError(f"{source}: span {spans[waiting[0]]} starts after the last decodable frame")
+    except BaseException:
+        for writer in writers.values():
+            writer.abort()
+        raise
+    finally:
+        if frames is not None:
+            frames.close()
+        container.close()
+    return [results[j] for j in range(len(spans))]
+
+
+def _frames(container, stream):
+    try:
+        for packet in container.demux(stream):
+            try:
+                yield from packet.decode()
+            except av.FFmpegError:
+                continue  # a corrupt packet: its frame is missing from the clip
+    except av.FFmpegError:
+        return  # a truncated tail ends the pass
+
+
+def encode_clip(source: Path | str, start_frame: int, end_frame: int, out: Path | str,
+                config: EncodeConfig = EncodeConfig(), info: SourceInfo | None = None) -> EncodedClip:
+    """Encode frames [start_frame, end_frame) of ``source`` to ``out`` (see ``encode_clips``)."""
+    return encode_clips(source, [(start_frame, end_frame)], [out], config, info)[0]

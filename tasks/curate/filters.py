@@ -1,0 +1,196 @@
+"""One filter contract for the curation filters (motion, quality, overlay text, video type).
+
+Every filter module exposes a frozen config class (with ``enabled`` and its thresholds, and a
+``stage`` class variable naming it) and a pure function
+``judge(frames, times, config) -> Verdict`` where
+
+- ``frames`` is T x h x w x 3 uint8 RGB: the analysis frames of ONE scene, downscaled so the
+  long side is about 256 px;
+- ``times`` is T float64 seconds, strictly increasing (variable frame rate is allowed).
+
+``run_filters`` runs every enabled filter (even after one rejects, so a rejected clip still
+carries every score), merges scores and tags, and reports the first rejecting stage.
+The shared helpers below (grey conversion, sampling, letterbox crop) exist so the four filters
+measure the same pixels. ``precision_recall`` scores a filter against corpus labels.
+"""
+
+from __future__ import annotations
+
+import importlib
+import math
+from collections import Counter
+from collections.abc import Sequence
+from typing import ClassVar
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+STAGES = ("motion", "quality", "overlay_text", "video_type")
+
+
+class Verdict(BaseModel):
+    """keep, or drop with a reason; scores are named floats, tags short ``kind:value`` strings.
+
+    ``stage`` names the filter that produced the verdict (for a merged verdict: the first
+    rejecting stage, or None when the clip is kept).
+    """
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    keep: bool
+    reason: str | None = None
+    scores: dict[str, float] = {}
+    tags: tuple[str, ...] = ()
+    stage: str | None = None
+
+
+class FilterConfig(BaseModel):
+    """Base of every filter config: frozen, strict, and switchable."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+    stage: ClassVar[str] = ""
+
+    enabled: bool = True
+
+
+def check_frames(frames: np.ndarray, times: np.ndarray) -> None:
+    """Raise ValueError naming the problem when frames/times break the filter contract."""
+    if not isinstance(frames, np.ndarray) or frames.dtype != np.uint8:
+        raise ValueError(f"frames: expected a uint8 numpy array, got {type(frames).__name__} "
+                         f"{getattr(frames, 'dtype', '')}")
+    if frames.ndim != 4 or frames.shape[-1] != 3:
+        raise ValueError(f"frames: expected T x h x w x 3 RGB, got shape {frames.shape}")
+    if frames.shape[0] < 2 or min(frames.shape[1:3]) < 16:
+        raise ValueError(f"frames: need at least 2 frames of at least 16x16 px, got {frames.shape}")
+    times = np.asarray(times)
+    if times.shape != (frames.shape[0],):
+        raise ValueError(f"times: expected shape ({frames.shape[0]},), got {times.shape}")
+    if not np.all(np.diff(times) > 0):
+        raise ValueError("times: must be strictly increasing seconds")
+
+
+def sample_indices(n_frames: int, n_samples: int) -> np.ndarray:
+    """At most ``n_samples`` frame indices spread evenly over 0..n_frames-1 (ends included)."""
+    if n_frames <= n_samples:
+        return np.arange(n_frames)
+    return np.unique(np.linspace(0, n_frames - 1, n_samples).round().astype(np.int64))
+
+
+def grey(frame: np.ndarray, long_side: int | None = None) -> np.ndarray:
+    """h x w x 3 uint8 RGB -> uint8 luma, area-downscaled to ``long_side`` when it is smaller."""
+    g = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+    h, w = g.shape
+    if long_side is not None and max(h, w) > long_side:
+        k = long_side / max(h, w)
+        g = cv2.resize(g, (max(8, round(w * k)), max(8, round(h * k))), interpolation=cv2.INTER_AREA)
+    return g
+
+
+def active_box(frames: np.ndarray, dark: int = 24) -> tuple[int, int, int, int]:
+    """(top, bottom, left, right) of the picture inside letterbox or pillarbox bars.
+
+    A bar is a run of border rows (columns) that stays darker than ``dark`` in every given
+    frame; bars count neither as flat nor as underexposed picture. frames: N x h x w x 3 uint8.
+    """
+    peak = frames.max(axis=(0, 3))
+    h, w = peak.shape
+    rows = np.flatnonzero(np.percentile(peak, 98, axis=1) >= dark)
+    cols = np.flatnonzero(np.percentile(peak, 98, axis=0) >= dark)
+    if rows.size == 0 or cols.size == 0:
+        return 0, h, 0, w
+    top, bottom, left, right = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    # Only trust a crop that leaves most of the picture: a dark scene is not a letterbox.
+    if (bottom - top) < h // 2 or (right - left) < w // 2:
+        return 0, h, 0, w
+    return top, bottom, left, right
+
+
+def run_filters(
+    frames: np.ndarray, times: np.ndarray, configs: Sequence[FilterConfig] | None = None
+) -> tuple[Verdict, list[Verdict]]:
+    """Run each enabled filter's ``judge`` in order; return (merged verdict, per-filter verdicts).
+
+    Every filter runs even after one rejects. The merged verdict keeps the clip only if every
+    filter keeps it; its reason and stage are those of the first rejecting filter; scores and
+    tags are the union over filters (a score name used by two filters is an error).
+    """
+    check_frames(frames, times)
+    configs = default_configs() if configs is None else tuple(configs)
+    verdicts: list[Verdict] = []
+    for config in configs:
+        if not config.enabled:
+            continue
+        judge = importlib.import_module(type(config).__module__).judge
+        verdict = judge(frames, times, config)
+        verdicts.append(verdict.model_copy(update={"stage": config.stage}))
+    scores: dict[str, float] = {}
+    tags: list[str] = []
+    for verdict in verdicts:
+        clash = scores.keys() & verdict.scores.keys()
+        if clash:
+            raise ValueError(f"filter {verdict.stage}: score names {sorted(clash)} already used")
+        scores.update(verdict.scores)
+        tags.extend(t for t in verdict.tags if t not in tags)
+    first = next((v for v in verdicts if not v.keep), None)
+    merged = Verdict(
+        keep=first is None,
+        reason=None if first is None else first.reason,
+        stage=None if first is None else first.stage,
+        scores=scores,
+        tags=tuple(tags),
+    )
+    return merged, verdicts
+
+
+def default_configs() -> tuple[FilterConfig, ...]:
+    """The four filters with their default thresholds, in pipeline order."""
+    # Imported here because each filter module imports this one for Verdict.
+    from tasks.curate.motion import MotionConfig
+    from tasks.curate.overlay_text import OverlayTextConfig
+    from tasks.curate.quality import QualityConfig
+    from tasks.curate.video_type import VideoTypeConfig
+
+    return MotionConfig(), QualityConfig(), OverlayTextConfig(), VideoTypeConfig()
+
+
+class PrecisionRecall(BaseModel):
+    """A filter's score on its own defect classes; precision/recall are NaN when undefined."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    precision: float
+    recall: float
+    tp: int
+    fp: int
+    fn: int
+    tn: int
+
+
+def precision_recall(
+    predicted: Sequence[str | None], labels: Sequence[str | None], classes: set[str]
+) -> PrecisionRecall:
+    """Score one filter: ``predicted[i]`` is its reject reason for segment i (None = kept),
+    ``labels[i]`` the segment's truth label (None = clean); ``classes`` is the filter's own
+    label set. Precision = of rejected segments, the fraction labelled in ``classes``;
+    recall = of segments labelled in ``classes``, the fraction rejected.
+    """
+    if len(predicted) != len(labels):
+        raise ValueError(f"precision_recall: {len(predicted)} predictions for {len(labels)} labels")
+    tp = fp = fn = tn = 0
+    for p, y in zip(predicted, labels):
+        rejected, positive = p is not None, y in classes
+        tp += rejected and positive
+        fp += rejected and not positive
+        fn += positive and not rejected
+        tn += not rejected and not positive
+    return PrecisionRecall(
+        precision=tp / (tp + fp) if tp + fp else math.nan,
+        recall=tp / (tp + fn) if tp + fn else math.nan,
+        tp=tp, fp=fp, fn=fn, tn=tn,
+    )
+
+
+def confusion(predicted: Sequence[str | None], labels: Sequence[str | None]) -> dict[tuple[str, str], int]:
+    """Counts of (truth label or "clean", predicted reason or "keep") pairs, for bench tables."""
+    return dict(Counter((y or "clean", p or "keep") for p, y in zip(predicted, labels, strict=True)))

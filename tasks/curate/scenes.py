@@ -1,0 +1,492 @@
+"""Streaming scene split: hard cuts from PySceneDetect, gradual transitions from frame statistics.
+
+Frames arrive one at a time (``AnalysisFrame``s from ``decode.analysis_frames``). Hard cuts
+come from a PySceneDetect 0.7 detector (AdaptiveDetector by default) fed frame by frame,
+with FrameTimecodes built from the frames' timestamps. Gradual transitions are found on
+per-frame statistics (mean luma, gradient energy, and a blurred 64-px grey thumbnail):
+
+- a fade through black is a luma valley near black with monotone ramps either side
+  (ThresholdDetector would give one cut mid-fade; the ramps are what must be excluded);
+- a dissolve is a span whose frames are well explained as blends (1-w) P + w Q of the
+  frames P and Q either side, with w rising steadily. Candidates come from a dip of the
+  gradient energy (a blend of unrelated shots is half as sharp mid-way) or from a peak of
+  the change across a few frames. Camera motion leaves a large blend residual; a hard cut
+  shows as a jump of w.
+
+Transition frames belong to no scene; they are reported as ``transition`` spans. Scenes
+shorter than ``min_scene_s`` are reported as ``too_short``; scenes longer than
+``max_scene_s`` are split into equal parts. A span is yielded once no later frame can change
+it (about ``max_transition_s`` + 1 s later), so memory is bounded by the longest scene and
+by ``2 x max_scene_s``: an open scene longer than that is cut into ``max_scene_s`` parts as
+it goes.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass
+from fractions import Fraction
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+from scenedetect.common import FrameTimecode, Timecode
+from scenedetect.detector import FlashFilter
+from scenedetect.detectors import AdaptiveDetector, ContentDetector
+
+from tasks.curate.decode import AnalysisConfig, AnalysisFrame, DecodeReport, SourceInfo, analysis_frames, probe
+
+MICROSECOND = Fraction(1, 1_000_000)
+THUMB_WIDTH = 64
+THUMB_BLUR = 2.0  # px of Gaussian blur on thumbnails: camera motion must not read as new content
+Span = tuple[int, int, str]  # (start, end exclusive, kind) in frame positions
+
+
+class SceneConfig(BaseModel):
+    """Detector choice and thresholds. Luma values are on 0..255; times in seconds."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    detector: Literal["adaptive", "content"] = "adaptive"
+    content_threshold: float = Field(27.0, gt=0, description="ContentDetector threshold")
+    adaptive_threshold: float = Field(3.0, gt=0, description="AdaptiveDetector ratio threshold")
+    adaptive_window: int = Field(2, ge=1, le=10)
+    min_content_val: float = Field(15.0, ge=0, description="AdaptiveDetector minimum content score")
+    min_cut_gap_s: float = Field(0.3, ge=0, description="detector's own minimum gap between cuts")
+    min_scene_s: float = Field(2.0, ge=0)
+    max_scene_s: float = Field(60.0, gt=0)
+    transitions: bool = Field(True, description="find fades and dissolves and exclude their frames")
+    max_transition_s: float = Field(2.0, gt=0)
+    fade_black: float = Field(24.0, ge=0, le=255, description="mean luma of a faded-out frame")
+    fade_step: float = Field(0.6, ge=0, description="smallest luma change per frame on a fade ramp")
+    fade_depth: float = Field(20.0, ge=0, description="luma rise from the darkest frame to the brighter end")
+    dissolve_dip: float = Field(0.7, gt=0, le=1, description="sharpness / its envelope mid-dissolve")
+    dissolve_edge: float = Field(0.9, gt=0, le=1, description="dip level that bounds the span")
+    dissolve_min_change: float = Field(15.0, ge=0, description="mean grey change across the span")
+    dissolve_max_step: float = Field(0.35, gt=0, le=1, description="largest blend-weight step (else a cut)")
+    dissolve_residual: float = Field(0.2, gt=0, description="blend residual / change")
+
+
+SpanKind = Literal["scene", "too_short", "transition"]
+
+
+@dataclass(frozen=True, slots=True)
+class Scene:
+    """A span of decoded frames [start_frame, end_frame) with its analysis frames.
+
+    ``frames`` is T x h x w x 3 uint8 RGB and ``times`` T float64 seconds (T may be less than
+    end_frame - start_frame when the decoder skipped frames); both are None from
+    ``detect_scenes``. ``end_s`` is the time of the first frame after the span. ``cause``
+    says what started the span: the video start, a cut, the end of a transition, or an
+    equal split of a longer shot; ``detail`` is "fade"/"dissolve" for transitions.
+    """
+
+    kind: SpanKind
+    start_frame: int
+    end_frame: int
+    start_s: float
+    end_s: float
+    cause: Literal["start", "cut", "transition", "split"] = "start"
+    detail: str | None = None
+    frames: np.ndarray | None = None
+    times: np.ndarray | None = None
+
+    @property
+    def duration(self) -> float:
+        return self.end_s - self.start_s
+
+    def summary(self) -> dict:
+        """JSON-ready fields without the frames."""
+        return {"kind": self.kind, "start_frame": self.start_frame, "end_frame": self.end_frame,
+                "start_s": round(self.start_s, 6), "end_s": round(self.end_s, 6),
+                "cause": self.cause, "detail": self.detail}
+
+
+def _detector(config: SceneConfig):
+    if config.detector == "content":
+        return ContentDetector(threshold=config.content_threshold, min_scene_len=config.min_cut_gap_s,
+                               filter_mode=FlashFilter.Mode.SUPPRESS)
+    return AdaptiveDetector(adaptive_threshold=config.adaptive_threshold, min_scene_len=config.min_cut_gap_s,
+                            window_width=config.adaptive_window, min_content_val=config.min_content_val)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) of each run of True."""
+    edges = np.flatnonzero(np.diff(np.concatenate([[0], mask.astype(np.int8), [0]])))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+def _fades(luma: np.ndarray, h: int, max_len: int, config: SceneConfig, ended: bool) -> list[Span]:
+    """Fades through black: the darkest frame within h either side, near black, with luma
+    ramps (at least two frames) out to shots at least ``fade_depth`` brighter."""
+    n = len(luma)
+    found = []
+    for v in np.flatnonzero(luma <= config.fade_black):
+        lo, hi = max(0, v - h), min(n, v + h + 1)
+        if luma[v] > luma[lo:hi].min() or np.any(luma[lo:v] <= luma[v]) or (v + h >= n and not ended):
+            continue  # not the first darkest frame around, or not yet seen in full
+        floor = luma[v] + 2.0
+
+        def out(t: int, nxt: int) -> bool:  # is frame nxt one step further out along a ramp?
+            # A ramp climbs about (luma - floor) / distance per frame; content drifting in
+            # the shot next to the fade climbs far slower.
+            slope = (luma[nxt] - floor) / (abs(nxt - v) + 1)
+            return luma[nxt] <= floor or luma[nxt] - luma[t] > max(config.fade_step, 0.015 * luma[nxt], 0.25 * slope)
+
+        a = b = int(v)
+        while a > 0 and b - a < max_len and out(a, a - 1):
+            a -= 1
+        while b < n - 1 and b - a < max_len and out(b, b + 1):
+            b += 1
+        if b - a > max_len or (b == n - 1 and not ended):
+            continue
+        ramps = b - a - 1 - int(np.sum(luma[a + 1: b] <= floor))
+        if ramps < 2 or max(luma[a], luma[b]) < luma[v] + config.fade_depth:
+            continue  # a dark shot between hard cuts, not a fade
+        found.append((a + 1, b + 1 if b == n - 1 and out(b - 1, b) else b, "fade"))
+    return found
+
+
+def _blend_fit(thumbs: np.ndarray, a: int, b: int) -> tuple[float, float, float, float] | None:
+    """How well frames a..b-1 are blends (1-w) P + w Q of P = thumbs[a-1] and Q = thumbs[b].
+
+    Returns (mean |Q - P|, mean residual / mean |Q - P|, correlation of w with time, largest
+    step of w, ends included).
+    """
+    p, q = thumbs[a - 1].ravel(), thumbs[b].ravel()
+    inner = thumbs[a:b].reshape(b - a, -1)
+    direction = q - p
+    norm = float(direction @ direction)
+    if norm <= 0:
+        return None
+    w = (inner - p) @ direction / norm
+    change = float(np.abs(direction).mean())
+    residual = float(np.abs(inner - p - w[:, None] * direction).mean()) / change
+    order = float(np.corrcoef(w, np.arange(len(w)))[0, 1]) if np.ptp(w) > 0 else 0.0
+    jump = float(np.abs(np.diff(np.concatenate([[0.0], w, [1.0]]))).max())
+    return change, residual, order, jump
+
+
+def _dissolves(sharp: np.ndarray, thumbs: np.ndarray, h: int, max_len: int, config: SceneConfig,
+               ended: bool, cache: dict, offset: int) -> list[Span]:
+    """Dissolves: for each candidate centre, the best-fitting blend span of a few widths."""
+    n = len(sharp)
+    pad = np.full(h, -np.inf)
+    windows = np.lib.stride_tricks.sliding_window_view(np.concatenate([pad, sharp, pad]), h + 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dip = np.nan_to_num(sharp / np.minimum(windows[:n].max(axis=1), windows[h: h + n].max(axis=1)), nan=1.0)
+    centres = {(r0 + r1) // 2: (r0, r1) for r0, r1 in _runs(dip < config.dissolve_edge)
+               if r1 - r0 <= max_len + 2 and dip[r0:r1].min() <= config.dissolve_dip}
+    # Shots of unequal sharpness need not dip: also try where the change across 2k frames
+    # peaks at 1.5 times its level 3k frames either side.
+    k = max(2, h // 3)
+    if n > 8 * k:
+        dk = np.zeros(n)
+        dk[k: n - k] = np.abs(thumbs[2 * k:] - thumbs[: n - 2 * k]).mean(axis=(1, 2))
+        c = np.arange(4 * k, n - 4 * k)
+        peak = ((dk[c] >= config.dissolve_min_change) & (dk[c] >= dk[c - 1]) & (dk[c] > dk[c + 1])
+                & (dk[c] >= 1.5 * np.minimum(dk[c - 3 * k], dk[c + 3 * k])))
+        for centre in c[peak].tolist():
+            centres.setdefault(centre, (centre - k // 2, centre + k // 2 + 1))
+    found = []
+    for c, (r0, r1) in sorted(centres.items()):
+        if c + max_len // 2 + h >= n and not ended:
+            continue
+        best = None
+        for a, b in {(r0, r1)} | {(c - m, c + m + 1) for m in (k // 2, k, 3 * k // 2, 2 * k)}:
+            a, b = max(a, 1), min(b, n - 1)
+            if b - a < 3 or b - a > max_len:
+                continue
+            key = (a + offset, b + offset)
+            if key not in cache:
+                cache[key] = _blend_fit(thumbs, a, b)
+            fit = cache[key]
+            if (fit is not None and fit[0] >= config.dissolve_min_change and fit[1] <= config.dissolve_residual
+                    and fit[2] >= 0.8 and fit[3] <= config.dissolve_max_step and (best is None or fit[1] < best[0])):
+                best = (fit[1], a, b)
+        if best is not None:
+            found.append((best[1], best[2], "dissolve"))
+    return found
+
+
+def find_transitions(luma: np.ndarray, sharp: np.ndarray, thumbs: np.ndarray, max_len: int,
+                     config: SceneConfig, ended: bool = False, cache: dict | None = None,
+                     offset: int = 0) -> list[Span]:
+    """Gradual transitions in N frames, as sorted, disjoint (start, end exclusive, kind).
+
+    luma: N mean luma (0..255); sharp: N mean squared grey gradient; thumbs: N x th x tw
+    float32 blurred grey thumbnails. Unless the video has ``ended``, candidates that later
+    frames could still change are left out. ``cache`` (with ``offset`` added to keys) keeps
+    blend fits between calls on overlapping windows.
+    """
+    h = max_len // 2 + 2
+    fades = _fades(luma, h, max_len, config, ended)
+    dissolves = _dissolves(sharp, thumbs, h, max_len, config, ended, {} if cache is None else cache, offset)
+    # A fade is also a blend (with black); its luma ramps bound it better than a blend fit.
+    found = sorted(fades + [d for d in dissolves if not any(d[0] < b and a < d[1] for a, b, _ in fades)])
+    merged: list[Span] = []
+    for a, b, kind in found:
+        if merged and a <= merged[-1][1]:
+            pa, pb, pkind = merged[-1]
+            merged[-1] = (pa, max(pb, b), "fade" if "fade" in (kind, pkind) else kind)
+        else:
+            merged.append((a, b, kind))
+    return merged
+
+
+def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray]:
+    """(mean luma, blurred 64-px grey thumbnail, mean squared gradient, half-size BGR frame)
+    of an RGB analysis frame. Frames wider than 160 px are measured at half size: the same
+    cuts and transitions on our corpus and on bikes.mp4, at a quarter of the cost."""
+    h, w = image.shape[:2]
+    small = image if w <= 160 else cv2.resize(image, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    bgr = cv2.cvtColor(small, cv2.COLOR_RGB2BGR)
+    grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    h, w = grey.shape
+    size = (THUMB_WIDTH, max(1, round(h * THUMB_WIDTH / w))) if w > THUMB_WIDTH else (w, h)
+    thumb = cv2.resize(grey, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+    gx = cv2.Sobel(grey, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
+    sharp = float(cv2.mean(gx * gx + gy * gy)[0])
+    # Blurred so that sub-pixel camera motion does not read as a change of content.
+    return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, bgr
+
+
+class _Rows:
+    """A growable array of equal-shaped rows: append at the end, drop from the front."""
+
+    def __init__(self, dtype=np.float32, shape: tuple[int, ...] = ()):
+        self.data = np.empty((256, *shape), dtype)
+        self.start = self.stop = 0
+
+    def append(self, row) -> None:
+        if self.stop == len(self.data):
+            kept = self.data[self.start: self.stop]
+            grown = np.empty((max(256, 2 * len(kept)), *self.data.shape[1:]), self.data.dtype)
+            grown[: len(kept)] = kept
+            self.data, self.start, self.stop = grown, 0, len(kept)
+        self.data[self.stop] = row
+        self.stop += 1
+
+    def drop(self, count: int) -> None:
+        self.start = min(self.stop, self.start + count)
+
+    def view(self, lo: int = 0) -> np.ndarray:
+        return self.data[self.start + lo: self.stop]
+
+
+class SceneSplitter:
+    """Push analysis frames in order; get spans back as soon as they are final.
+
+    ``for f in frames: handle(splitter.push(f))`` then ``handle(splitter.finish())``. Spans
+    come out in order and tile the pushed frames: kept ``scene``s, ``too_short`` shots and
+    ``transition``s. ``fps`` is the source's average rate (it sizes windows in frames).
+    """
+
+    def __init__(self, fps: float, config: SceneConfig = SceneConfig(), keep_frames: bool = True):
+        self.config, self.fps, self.keep_frames = config, float(fps), keep_frames
+        self.max_len = max(3, round(config.max_transition_s * fps))
+        # Frames after which no boundary can change, and context kept before the open span.
+        self.lag = self.max_len + 2 * (self.max_len // 2 + 2) + config.adaptive_window + 2
+        self.absorb = max(2, round(0.25 * fps))  # a detector cut this near a transition is it
+        self.detector = _detector(config)
+        self.rate = Fraction(self.fps).limit_denominator(1001)
+        self.base = 0  # position (decoded-frame order) of the first stored frame
+        self.index: list[int] = []
+        self.times: list[float] = []
+        self.images: list[np.ndarray | None] = []
+        self.luma, self.sharp = _Rows(np.float64), _Rows(np.float64)
+        self.thumbs: _Rows | None = None  # blurred grey thumbnails, shape set by the first frame
+        self.cuts: list[int] = []  # positions of first frames after a hard cut
+        self.fits: dict = {}
+        self.by_pts: dict[int, int] = {}
+        self.open = 0  # position where the open span starts
+        self.shown = 0  # position of self.images[0]: frames before the open span are dropped
+        self.open_cause = "start"
+        self.checked = 0  # frontier of the previous settle
+        self.pushed = 0
+
+    def push(self, frame: AnalysisFrame) -> list[Scene]:
+        """Take the next frame (in decoded order); return the spans that became final."""
+        pos = self.pushed
+        self.pushed += 1
+        self.index.append(frame.index)
+        self.times.append(frame.time)
+        self.images.append(frame.image if self.keep_frames else None)  # from position self.shown
+        luma, thumb, sharp, bgr = _features(frame.image)
+        if self.thumbs is None:
+            self.thumbs = _Rows(np.float32, thumb.shape)
+        self.luma.append(luma)
+        self.thumbs.append(thumb)
+        self.sharp.append(sharp)
+        pts = round(frame.time / MICROSECOND)
+        self.by_pts[pts] = pos
+        code = FrameTimecode(Timecode(pts=pts, time_base=MICROSECOND), fps=self.rate)
+        for cut in self.detector.process_frame(code, bgr):
+            self.cuts.append(self.by_pts.get(cut.pts, pos))
+        if len(self.by_pts) > 64:
+            del self.by_pts[next(iter(self.by_pts))]
+        return self._settle(pos + 1 - self.lag) if pos % 16 == 0 else []
+
+    def finish(self) -> list[Scene]:
+        """The remaining spans, once the last frame has been pushed."""
+        out = self._settle(self.pushed, final=True)
+        out += self._close(self.open, self.pushed, self.open_cause)
+        self.open = self.pushed
+        return out
+
+    def _boundaries(self, final: bool) -> list[Span]:
+        spans: list[Span] = []
+        if self.config.transitions and self.pushed > self.base:
+            # Search only where a new boundary can still start, with `lag` frames of context
+            # before it (spans nearer the window's edge could be artefacts of the edge).
+            start = max(self.open, self.checked - self.max_len)
+            lo = max(self.base, start - self.lag)
+            found = find_transitions(self.luma.view(lo - self.base), self.sharp.view(lo - self.base),
+                                     self.thumbs.view(lo - self.base), self.max_len, self.config,
+                                     ended=final, cache=self.fits, offset=lo)
+            spans = [(a + lo, b + lo, kind) for a, b, kind in found if a + lo >= start]
+        near = self.absorb
+        cuts = [(c, c, "cut") for c in self.cuts if not any(a - near <= c < b + near for a, b, _ in spans)]
+        return sorted(s for s in spans + cuts if s[0] > self.open or (s[2] != "cut" and s[1] > self.open))
+
+    def _settle(self, frontier: int, final: bool = False) -> list[Scene]:
+        out: list[Scene] = []
+        for a, b, kind in self._boundaries(final):
+            if not final and (b > frontier or (kind == "cut" and a + self.max_len > frontier)):
+                break  # a transition found later may still swallow a recent cut
+            a = max(a, self.open)
+            out += self._close(self.open, a, self.open_cause)
+            if kind == "cut":
+                self.open, self.open_cause = a, "cut"
+            else:
+                out.append(self._span("transition", a, b, "cut" if a > self.open else self.open_cause, kind))
+                self.open, self.open_cause = b, "transition"
+        if not final:
+            out += self._trim_long(frontier)
+            self.checked = max(self.checked, frontier)
+            if len(self.fits) > 4096:  # fits far behind the frontier are never asked for again
+                self.fits = {key: fit for key, fit in self.fits.items() if key[0] > frontier - 2 * self.lag}
+        self._forget()
+        return out
+
+    def _trim_long(self, frontier: int) -> list[Scene]:
+        start_time = self._time(self.open)
+        if frontier <= self.open or self._time(frontier) - start_time <= 2 * self.config.max_scene_s:
+            return []
+        times = np.asarray(self.times[self.open - self.base: frontier - self.base])
+        end = self.open + int(np.searchsorted(times, start_time + self.config.max_scene_s))
+        part = self._span("scene", self.open, end, self.open_cause)
+        self.open, self.open_cause = end, "split"
+        return [part]
+
+    def _close(self, start: int, end: int, cause: str) -> list[Scene]:
+        """The shot [start, end): too short, one scene, or equal parts no longer than max."""
+        if end <= start:
+            return []
+        duration = self._time(end) - self._time(start)
+        if duration < self.config.min_scene_s:
+            return [self._span("too_short", start, end, cause)]
+        parts = max(1, int(np.ceil(duration / self.config.max_scene_s - 1e-9)))
+        times = np.asarray(self.times[start - self.base: end - self.base])
+        edges = [start] + [start + int(np.searchsorted(times, times[0] + duration * j / parts))
+                           for j in range(1, parts)] + [end]
+        return [self._span("scene", s, e, cause if j == 0 else "split")
+                for j, (s, e) in enumerate(zip(edges[:-1], edges[1:], strict=True))]
+
+    def _time(self, pos: int) -> float:
+        if pos < self.pushed:
+            return self.times[pos - self.base]
+        steps = np.diff(self.times[-9:])  # the end of the last frame: one typical step after it
+        return self.times[-1] + (float(np.median(steps)) if len(steps) else 1.0 / self.fps)
+
+    def _span(self, kind: SpanKind, start: int, end: int, cause: str, detail: str | None = None) -> Scene:
+        lo, hi = start - self.base, end - self.base
+        frames = times = None
+        if self.keep_frames:
+            frames = np.stack(self.images[start - self.shown: end - self.shown])
+            times = np.asarray(self.times[lo:hi], np.float64)
+        end_frame = self.index[hi] if hi < len(self.index) else self.index[-1] + 1
+        return Scene(kind=kind, start_frame=self.index[lo], end_frame=end_frame, start_s=self._time(start),
+                     end_s=self._time(end), cause=cause, detail=detail, frames=frames, times=times)
+
+    def _forget(self) -> None:
+        del self.images[: self.open - self.shown]
+        self.shown = self.open
+        drop = self.open - self.lag - self.base
+        if drop <= 0:
+            return
+        for store in (self.index, self.times):
+            del store[:drop]
+        for rows in (self.luma, self.sharp, self.thumbs):
+            rows.drop(drop)
+        self.base += drop
+        self.cuts = [c for c in self.cuts if c >= self.base]
+        self.fits = {key: fit for key, fit in self.fits.items() if key[0] > self.base}
+
+
+def split_scenes(frames: Iterable[AnalysisFrame], fps: float, config: SceneConfig = SceneConfig(),
+                 keep_frames: bool = True) -> Iterator[Scene]:
+    """Spans in order (scenes, too_short and transition spans) from a stream of frames."""
+    splitter = SceneSplitter(fps, config, keep_frames)
+    for frame in frames:
+        yield from splitter.push(frame)
+    yield from splitter.finish()
+
+
+def scenes_of(path: Path | str, config: SceneConfig = SceneConfig(), analysis: AnalysisConfig = AnalysisConfig(),
+              report: DecodeReport | None = None, info: SourceInfo | None = None,
+              keep_frames: bool = True) -> Iterator[Scene]:
+    """Decode ``path`` once and yield its spans with their analysis frames."""
+    info = info or probe(path)
+    yield from split_scenes(analysis_frames(path, analysis, report, info), info.fps, config, keep_frames)
+
+
+def detect_scenes(path: Path | str, config: SceneConfig = SceneConfig(), analysis: AnalysisConfig = AnalysisConfig(),
+                  include_rejected: bool = False) -> list[Scene]:
+    """Spans of ``path`` without frames (what ``worldline scenes VIDEO --json`` prints).
+
+    Only kept scenes unless ``include_rejected`` (then also too_short and transition spans).
+    """
+    spans = scenes_of(path, config, analysis, keep_frames=False)
+    return [s for s in spans if include_rejected or s.kind == "scene"]
+
+
+def boundaries(spans: Sequence[Scene]) -> list[int | tuple[int, int]]:
+    """Predicted boundaries for ``cut_f1``: the first frame after each cut, and each
+    transition as (start, end). Splits of one long shot are not boundaries."""
+    out: list[int | tuple[int, int]] = []
+    for span in spans:
+        if span.kind == "transition":
+            out.append((span.start_frame, span.end_frame))
+        elif span.cause == "cut":
+            out.append(span.start_frame)
+    return out
+
+
+def cut_f1(predicted: Sequence[int | tuple[int, int]], truth_cuts: Sequence[int],
+           truth_transitions: Sequence[tuple[int, int]], tolerance: int = 2) -> dict[str, float]:
+    """Precision, recall and F1 of predicted boundaries against ground truth.
+
+    A predicted cut c or transition (a, b) hits a true cut t when t is within ``tolerance``
+    frames of [c, c] or [a, b]; it hits a true transition (s, e) when the two intervals,
+    the true one widened by ``tolerance``, overlap. Matching is one to one, in order.
+    """
+    pred = sorted((int(p), int(p)) if isinstance(p, (int, np.integer)) else (int(p[0]), max(int(p[0]), int(p[1]) - 1))
+                  for p in predicted)
+    truth = sorted([(int(t), int(t)) for t in truth_cuts] + [(int(s), int(e) - 1) for s, e in truth_transitions])
+    used = [False] * len(truth)
+    hits = 0
+    for a, b in pred:
+        for j, (s, e) in enumerate(truth):
+            if not used[j] and a <= e + tolerance and b >= s - tolerance:
+                used[j] = True
+                hits += 1
+                break
+    precision = hits / len(pred) if pred else 1.0
+    recall = hits / len(truth) if truth else 1.0
+    f1 = 2 * precision * recall / (precision + recall) if precision + recall else 0.0
+    return {"precision": precision, "recall": recall, "f1": f1, "hits": hits,
+            "predicted": len(pred), "truth": len(truth)}

@@ -1,0 +1,65 @@
+"""The curate flow end to end on generated footage, a duplicate and broken inputs."""
+
+import hashlib
+
+import pytest
+
+from flows.curate import curate
+from schemas.settings import Settings
+from warehouse import audit
+from warehouse.store import Warehouse
+
+from tasks.manifests import load
+from tasks.mp4 import write_mp4
+from tasks.sim.episode import rollout
+
+from tests.support import MANIFESTS
+
+MANIFEST = MANIFESTS / "conveyor_push.yaml"
+
+
+@pytest.fixture(scope="module")
+def batch(tmp_path_factory):
+    """Two simulator episodes (4 s each, one shot), a re-encoded copy of one, and broken inputs."""
+    inbox = tmp_path_factory.mktemp("inbox")
+    scenario = load(MANIFEST).model_copy(update={"horizon_s": 4.0})
+    first, second = (rollout(scenario, seed).frames["overhead"] for seed in (1, 2))
+    write_mp4(inbox / "a.mp4", first, 30)
+    write_mp4(inbox / "b with space.mp4", second, 30)
+    write_mp4(inbox / "c_copy.mp4", first, 30, crf=32)
+    (inbox / "broken.mp4").write_bytes(b"\x00\x01garbage" * 300)
+    (inbox / "folder.mp4").mkdir()
+    return inbox
+
+
+def _digests(root):
+    return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted((root / "shards").rglob("*.parquet"))}
+
+
+def test_curate_batch_then_rerun(prefect_harness, data_root, batch):
+    first = curate([str(batch)], str(MANIFEST))
+    assert first["status"] == "partial" and first["failed"] == 2 and first["inputs"] == 5
+    assert first["counts"]["dedup/duplicate"] == 1
+    assert first["clips"] == 2 and first["shards"]
+    shards = _digests(data_root)
+
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, rejected = wh.query("SELECT stage, reason, detail FROM rejections ORDER BY stage")
+        _, analysed = wh.query("SELECT count(*) FROM stage_runs WHERE stage = 'analyse'")
+        _, shard_ids = wh.query("SELECT artifact_id FROM artifacts WHERE kind = 'shard'")
+        sql, _ = audit.bind("ancestry", {"artifact": "x"})
+        _, ancestry = wh.query(sql, {"artifact": shard_ids[0][0]})
+    assert ("decode", "unreadable") in {(s, r) for s, r, _ in rejected}
+    assert any(s == "dedup" and d.startswith("duplicate of") for s, _, d in rejected)
+    assert {r[1] for r in ancestry} >= {"shard", "clip", "raw_video", "manifest"}
+    assert analysed == [(3,)]
+
+    second = curate([str(batch)], str(MANIFEST))
+    assert second["clips"] == first["clips"] and second["counts"] == first["counts"]
+    assert _digests(data_root) == shards  # byte-identical shards
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, again = wh.query("SELECT count(*) FROM stage_runs WHERE stage = 'analyse'")
+        _, runs = wh.query("SELECT status FROM runs WHERE flow = 'curate'")
+    assert again == [(3,)]  # nothing re-analysed: no decoding
+    assert runs == [("partial",), ("partial",)]

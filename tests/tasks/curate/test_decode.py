@@ -1,0 +1,179 @@
+"""probe and the single analysis pass, on tiny generated videos whose frames encode their index."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import av
+import cv2
+import numpy as np
+import pytest
+
+from tasks.curate.decode import AnalysisConfig, DecodeError, DecodeReport, analysis_frames, frame_pts, probe
+
+DATA = Path(__file__).resolve().parents[3] / "../shared/data/videos"
+
+
+def coded(i: int, w: int = 64, h: int = 48) -> np.ndarray:
+    """H x W x 3 frame carrying i in two grey blocks (i % 16 and i // 16, 14 levels apart)
+    on a textured, moving background."""
+    y, x = np.mgrid[0:h, 0:w]
+    frame = np.stack([(x * 3 + i) % 256, (y * 5) % 256, ((x + y + 2 * i) * 2) % 256], axis=-1).astype(np.uint8)
+    frame[: h // 2, : w // 4] = 20 + 14 * (i % 16)
+    frame[: h // 2, w // 4: w // 2] = 20 + 14 * (i // 16)
+    return frame
+
+
+def read_index(image: np.ndarray) -> int:
+    """Inverse of ``coded`` for a frame of any size in the original orientation."""
+    h, w = image.shape[:2]
+    grey = image.astype(np.float64).mean(axis=-1)
+    low = grey[h // 16: h // 2 - h // 16, w // 32: w // 4 - w // 32].mean()
+    high = grey[h // 16: h // 2 - h // 16, w // 4 + w // 32: w // 2 - w // 32].mean()
+    return int(round((low - 20) / 14)) + 16 * int(round((high - 20) / 14))
+
+
+def test_probe_reports_what_the_file_declares(make_video):
+    path = make_video((coded(i) for i in range(40)), fps=25)
+    info = probe(path)
+    assert (info.width, info.height, info.display_width, info.display_height) == (64, 48, 64, 48)
+    assert info.n_frames == 40 and info.fps == pytest.approx(25.0) and info.duration == pytest.approx(1.6)
+    assert info.codec == "h264" and info.rotation == 0 and info.sar == 1.0 and not info.vfr
+
+
+def test_every_frame_once_in_order_with_pts_times(make_video):
+    path = make_video((coded(i) for i in range(50)), fps=25)
+    report = DecodeReport()
+    frames = list(analysis_frames(path, AnalysisConfig(long_side=64), report))
+    assert [f.index for f in frames] == list(range(50))
+    assert [read_index(f.image) for f in frames] == list(range(50))
+    np.testing.assert_allclose([f.time for f in frames], np.arange(50) / 25, atol=1e-6)
+    assert frames[0].image.shape == (48, 64, 3) and frames[0].image.dtype == np.uint8
+    assert (report.frames, report.skipped, report.decode_errors) == (50, 0, 0)
+    pts, keys, _, _ = frame_pts(path)
+    assert len(pts) == 50 and keys[0] == pts[0]
+
+
+def test_downscale_keeps_aspect_and_never_upscales(make_video):
+    path = make_video((coded(i, 160, 90) for i in range(5)))
+    assert next(iter(analysis_frames(path, AnalysisConfig(long_side=64)))).image.shape == (36, 64, 3)
+    assert next(iter(analysis_frames(path, AnalysisConfig(long_side=512)))).image.shape == (90, 160, 3)
+
+
+def test_variable_frame_rate_times_come_from_timestamps(make_video):
+    times = np.cumsum([0.0] + [0.02 if i % 3 else 0.08 for i in range(29)])
+    path = make_video((coded(i) for i in range(30)), fps=25, times=times)
+    info = probe(path)
+    assert info.vfr
+    frames = list(analysis_frames(path))
+    assert [read_index(f.image) for f in frames] == list(range(30))
+    np.testing.assert_allclose([f.time for f in frames], times, atol=1.5e-3)
+
+
+@pytest.mark.parametrize("rotation", [90, 180, 270])
+def test_rotation_metadata_gives_display_orientation(make_video, rotation):
+    path = make_video((coded(i) for i in range(10)), rotation=rotation)
+    info = probe(path)
+    assert info.rotation == rotation
+    expected_shape = (64, 48) if rotation in (90, 270) else (48, 64)
+    assert (info.display_height, info.display_width) == expected_shape
+    frames = list(analysis_frames(path))
+    assert frames[3].image.shape[:2] == expected_shape
+    # Reference: OpenCV applies the same display matrix when it reads (its FFmpeg backend).
+    capture = cv2.VideoCapture(str(path))
+    for _ in range(4):
+        ok, bgr = capture.read()
+    capture.release()
+    assert ok and bgr.shape[:2] == expected_shape
+    assert np.abs(bgr[..., ::-1].astype(int) - frames[3].image.astype(int)).mean() < 3
+    turned_back = np.rot90(frames[3].image, k=-rotation // 90)
+    assert read_index(turned_back) == 3
+
+
+def test_non_square_pixels_are_stretched_to_display_width(make_video):
+    path = make_video((coded(i) for i in range(5)), sar=(2, 1))
+    info = probe(path)
+    assert info.sar == 2.0 and (info.display_width, info.display_height) == (128, 48)
+    image = next(iter(analysis_frames(path))).image
+    assert image.shape == (48, 128, 3)
+    assert read_index(cv2.resize(image, (64, 48), interpolation=cv2.INTER_AREA)) == 0
+
+
+def test_odd_width_and_height(make_video):
+    path = make_video((coded(i, 63, 47) for i in range(12)))
+    info = probe(path)
+    assert (info.width, info.height) == (63, 47)
+    frames = list(analysis_frames(path))
+    assert frames[0].image.shape == (47, 63, 3)
+    assert [read_index(f.image) for f in frames] == list(range(12))
+
+
+def test_corrupt_frames_in_the_middle_are_skipped_and_counted(make_video, tmp_path):
+    path = make_video((coded(i) for i in range(60)), gop=20)
+    with av.open(str(path)) as container:
+        packets = [(p.pos, p.size) for p in container.demux(video=0) if p.size]
+    data = bytearray(path.read_bytes())
+    rng = np.random.default_rng(0)
+    for pos, size in packets[25:28]:  # three frames inside the second group of pictures
+        data[pos + 4: pos + size] = rng.integers(0, 256, size - 4, dtype=np.uint8).tobytes()
+    broken = tmp_path / "broken.mp4"
+    broken.write_bytes(bytes(data))
+    report = DecodeReport()
+    frames = list(analysis_frames(broken, report=report))
+    assert report.decode_errors + report.skipped > 0 and report.problems
+    assert 40 <= len(frames) < 60
+    # Indices stay those of the timestamps: frames after the next key frame are intact.
+    assert [read_index(f.image) for f in frames if f.index >= 40] == list(range(40, 60))
+
+
+def make_bad(kind: str, folder: Path) -> Path:
+    path = folder / f"bad_{kind}"
+    if kind == "empty":
+        path.write_bytes(b"")
+    elif kind == "text":
+        path.write_text("not a video at all\n" * 50)
+    elif kind == "audio":
+        with av.open(str(path), "w", format="wav") as container:
+            stream = container.add_stream("pcm_s16le", rate=8000)
+            frame = av.AudioFrame.from_ndarray(np.zeros((1, 800), np.int16), format="s16", layout="mono")
+            frame.sample_rate = 8000
+            for packet in [*stream.encode(frame), *stream.encode()]:
+                container.mux(packet)
+    elif kind == "huge":
+        with av.open(str(path), "w", format="nut") as container:
+            stream = container.add_stream("rawvideo", rate=25)
+            stream.width, stream.height, stream.pix_fmt = 20000, 8, "gray"
+            frame = av.VideoFrame.from_ndarray(np.zeros((8, 20000), np.uint8), format="gray")
+            for packet in [*stream.encode(frame), *stream.encode()]:
+                container.mux(packet)
+    elif kind == "fps":
+        with av.open(str(path), "w", format="mp4") as container:
+            stream = container.add_stream("libx264", rate=5000)
+            stream.width, stream.height, stream.pix_fmt = 32, 32, "yuv420p"
+            frame = av.VideoFrame.from_ndarray(np.zeros((32, 32, 3), np.uint8), format="rgb24")
+            for packet in [*stream.encode(frame), *stream.encode()]:
+                container.mux(packet)
+    return path
+
+
+@pytest.mark.parametrize("kind, problem", [
+    ("missing", "no such file"), ("empty", "empty file"), ("text", "not a readable video"),
+    ("audio", "no video stream"), ("huge", "absurd frame size"), ("fps", "absurd or missing frame rate"),
+])
+def test_unreadable_input_is_refused_with_file_and_reason(tmp_path, kind, problem):
+    path = tmp_path / "bad_missing" if kind == "missing" else make_bad(kind, tmp_path)
+    with pytest.raises(DecodeError, match=problem) as caught:
+        probe(path)
+    assert str(path) in str(caught.value)
+    with pytest.raises(DecodeError):
+        next(iter(analysis_frames(path)))
+
+
+def test_real_footage_decodes_fully():
+    path = DATA / "bikes.mp4"
+    if not path.exists():
+        pytest.skip("../shared/data is not present")
+    info = probe(path)
+    frames = list(analysis_frames(path, info=info))
+    assert len(frames) == info.n_frames == 250
+    assert frames[0].image.shape == (109, 256, 3)

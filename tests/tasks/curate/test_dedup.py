@@ -1,0 +1,257 @@
+"""Dedup: copies (re-encoded, rescaled, cropped, letterboxed, brightness-shifted) collapse to
+one group; different clips of the same generator, and of the same simulator-like scene, do not."""
+
+from __future__ import annotations
+
+import itertools
+import random
+
+import av
+import cv2
+import numpy as np
+import pytest
+
+from schemas.records import ClipRecord
+from tasks.curate import dedup
+from tasks.curate.dedup import ClipSignature, DedupConfig, group, quality_key, signature
+
+H, W, T = 144, 256, 40
+
+
+def _texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    img = np.zeros((h, w, 3), np.float32)
+    for octave, amp in ((4, 1.0), (8, 0.6), (16, 0.35), (32, 0.2)):
+        small = rng.normal(size=(octave * h // w + 2, octave + 2, 3)).astype(np.float32)
+        img += amp * cv2.resize(small, (w, h), interpolation=cv2.INTER_CUBIC)
+    img = (img - img.min()) / (img.max() - img.min())
+    return (40 + 180 * img).astype(np.uint8)
+
+
+def drifting(seed: int) -> np.ndarray:
+    """Procedural 'drifting textured landscape': one generator, content set by the seed."""
+    rng = np.random.default_rng(seed)
+    big = _texture(rng, 2 * H, 2 * W)
+    vx, vy = rng.uniform(-2, 2, 2)
+    return np.stack([big[int(H / 2 + vy * t):int(H / 2 + vy * t) + H, int(W / 2 + vx * t):int(W / 2 + vx * t) + W] for t in range(T)])
+
+
+def _background() -> np.ndarray:
+    bg = np.zeros((H, W, 3), np.uint8)
+    bg[: H // 3] = (90, 100, 110)
+    bg[H // 3:] = (150, 140, 120)
+    cv2.rectangle(bg, (90, 70), (170, 130), (60, 80, 140), -1)
+    cv2.rectangle(bg, (98, 76), (162, 124), (40, 50, 90), -1)
+    return bg
+
+
+def arm_scene(cell: int) -> np.ndarray:
+    """Simulator-like: one fixed scene, an arm moving between end points that sit on a 12 px
+    grid by ``cell``, so two cells' paths differ by at least 12 px (5% of the width) somewhere."""
+    bg = _background()
+    base = np.array([40, 120])
+    assert 0 <= cell < 12
+    p0 = np.array([80, 50]) + 12 * np.array([cell % 4, cell // 4])
+    k = cell * 5 % 12  # another walk over the same 4 x 3 grid
+    p1 = np.array([170, 85]) + 12 * np.array([k % 4, k // 4])
+    frames = []
+    for t in range(T):
+        f = bg.copy()
+        ee = p0 + (p1 - p0) * t / (T - 1)
+        elbow = (base + ee) / 2 + np.array([0, -30])
+        pts = [tuple(int(v) for v in p) for p in (base, elbow, ee)]
+        cv2.rectangle(f, (122, 92), (138, 108), (180, 120, 60), -1)
+        cv2.line(f, pts[0], pts[1], (200, 200, 210), 7)
+        cv2.line(f, pts[1], pts[2], (200, 200, 210), 5)
+        cv2.circle(f, pts[2], 5, (30, 30, 30), -1)
+        frames.append(f)
+    return np.stack(frames)
+
+
+def _decode(path) -> np.ndarray:
+    with av.open(str(path)) as container:
+        return np.stack([f.to_ndarray(format="rgb24") for f in container.decode(video=0)])
+
+
+def _resize(frames: np.ndarray, w: int, h: int) -> np.ndarray:
+    return np.stack([cv2.resize(f, (w, h), interpolation=cv2.INTER_AREA) for f in frames])
+
+
+def crop(frames: np.ndarray, frac: float, ax: float, ay: float, keep_size: bool) -> np.ndarray:
+    h, w = frames.shape[1:3]
+    ch, cw = round(h * (1 - frac)), round(w * (1 - frac))
+    y, x = round((h - ch) * ay), round((w - cw) * ax)
+    out = frames[:, y:y + ch, x:x + cw]
+    return _resize(out, w, h) if keep_size else np.ascontiguousarray(out)
+
+
+def letterbox(frames: np.ndarray, frac: float) -> np.ndarray:
+    h, w = frames.shape[1:3]
+    nh = round(h * (1 - frac)) // 2 * 2
+    out = np.zeros_like(frames)
+    out[:, (h - nh) // 2:(h - nh) // 2 + nh] = _resize(frames, w, nh)
+    return out
+
+
+def brightness(frames: np.ndarray, delta: int) -> np.ndarray:
+    return np.clip(frames.astype(np.int16) + delta, 0, 255).astype(np.uint8)
+
+
+@pytest.fixture(scope="module")
+def corpus(make_video):
+    """clip id -> (frames, content id): 12 originals with two copies each, and 8 lone clips."""
+    transforms = {
+        "reencode": lambda f: _decode(make_video(f, crf=32)),
+        "half": lambda f: _resize(f, W // 2, H // 2),
+        "crop10": lambda f: crop(f, 0.10, 0.5, 0.5, keep_size=True),
+        "crop12_corner": lambda f: crop(f, 0.12, 0.0, 0.0, keep_size=False),
+        "crop6_corner": lambda f: crop(f, 0.06, 1.0, 1.0, keep_size=True),
+        "letterbox": lambda f: letterbox(f, 0.12),
+        "bright+20": lambda f: brightness(f, 20),
+        "bright-20": lambda f: brightness(f, -20),
+    }
+    names = itertools.cycle(transforms)
+    clips = {}
+    for i in range(10):
+        for kind, frames in (("tex", drifting(100 + i)), ("arm", arm_scene(i))):
+            cid = f"{kind}{i}"
+            clips[cid] = (frames, cid)
+            if i >= 6:
+                continue  # lone clips: negatives only
+            for n in range(2):
+                name = next(names)
+                # Copies are cut a frame later, as a scene detector may cut a re-encoded copy.
+                shift = frames[n:len(frames) - 1 + n]
+                clips[f"{cid}_{name}"] = (transforms[name](shift), cid)
+    return clips
+
+
+@pytest.fixture(scope="module")
+def signatures(corpus):
+    return {cid: signature(frames) for cid, (frames, _) in corpus.items()}
+
+
+def _pairs(groups) -> set[tuple[str, str]]:
+    return {tuple(sorted(p)) for members in groups for p in itertools.combinations(members, 2)}
+
+
+def test_copies_collapse_and_lookalikes_stay_apart(corpus, signatures):
+    quality = {cid: (frames.shape[1] * frames.shape[2],) for cid, (frames, _) in corpus.items()}
+    result = group(signatures, quality)
+    truth: dict[str, list[str]] = {}
+    for cid, (_, content) in corpus.items():
+        truth.setdefault(content, []).append(cid)
+    found, expected = _pairs(result.groups.values()), _pairs(truth.values())
+    missed, wrong = sorted(expected - found), sorted(found - expected)
+    assert not missed and not wrong, f"missed {missed}; merged different clips {wrong}"
+    # Every original outranks its copies here (larger or equal picture, smaller id).
+    assert set(result.kept) == set(truth)
+    assert result.removed == {c: content for c, (_, content) in corpus.items() if c != content}
+    assert result.candidates < len(corpus) * (len(corpus) - 1) / 2
+
+
+def test_grouping_does_not_depend_on_order(corpus, signatures):
+    quality = {cid: (frames.shape[1] * frames.shape[2],) for cid, (frames, _) in corpus.items()}
+    reference = group(signatures, quality)
+    ids = list(signatures)
+    for seed in range(3):
+        random.Random(seed).shuffle(ids)
+        shuffled = {cid: signatures[cid] for cid in ids}
+        assert group(shuffled, {c: quality[c] for c in reversed(ids)}) == reference
+
+
+def test_keeps_larger_then_better_then_smallest_id(corpus):
+    frames = corpus["tex0"][0]
+    sigs = {
+        "a_small": signature(_resize(frames, W // 2, H // 2)),
+        "b_big_worse": signature(frames),
+        "c_big_better": signature(brightness(frames, 10)),
+        "d_big_better": signature(brightness(frames, -10)),
+    }
+    def clip(cid, w, h, q):
+        return ClipRecord(clip_id=cid, source_id="s", source_uri="u", start_frame=0, end_frame=T, start_s=0,
+                          end_s=T / 25, fps=25, width=w, height=h, scores={"quality": q})
+    records = [clip("a_small", W // 2, H // 2, 0.99), clip("b_big_worse", W, H, 0.2),
+               clip("c_big_better", W, H, 0.9), clip("d_big_better", W, H, 0.9)]
+    result = group(sigs, {r.clip_id: quality_key(r) for r in records})
+    assert result.kept == ("c_big_better",)
+    assert result.removed == {"a_small": "c_big_better", "b_big_worse": "c_big_better", "d_big_better": "c_big_better"}
+    marked = {r.clip_id: r for r in dedup.apply(records, sigs, result)}
+    assert marked["c_big_better"].kept and marked["c_big_better"].dedup_group == "c_big_better"
+    assert not marked["a_small"].kept and marked["a_small"].reject_stage == "dedup"
+    assert marked["a_small"].reject_reason == "duplicate" and marked["a_small"].dedup_group == "c_big_better"
+    assert marked["b_big_worse"].phash == sigs["b_big_worse"].phash and len(marked["b_big_worse"].phash) == 16 * 5
+
+
+def _brute_candidates(hashes: np.ndarray, min_collisions: int) -> set[tuple[int, int]]:
+    """Slow reference: count (frame, band) slots where one clip's whole picture matches any crop of the other."""
+    n, f, c = hashes.shape
+    out = set()
+    for i, j in itertools.combinations(range(n), 2):
+        hits = 0
+        for k in range(f):
+            for b in range(dedup.BANDS):
+                band = lambda h: {int(x) >> (b * dedup.BAND_BITS) & 0xFFFF for x in h}  # noqa: E731
+                hits += bool(band(hashes[i, k, :1]) & band(hashes[j, k]) or band(hashes[j, k, :1]) & band(hashes[i, k]))
+        if hits >= min_collisions:
+            out.add((i, j))
+    return out
+
+
+def test_lsh_candidates_match_a_brute_force_count():
+    rng = np.random.default_rng(3)
+    n, f, c = 60, 3, 4
+    hashes = rng.integers(0, 2**63, size=(n, f, c), dtype=np.uint64)
+    for i in range(0, n, 6):  # plant near copies: a few flipped bits, in one crop
+        hashes[i + 1, :, 2] = hashes[i, :, 0] ^ np.uint64(1 << int(rng.integers(0, 64)))
+        hashes[i + 2] = hashes[i] ^ np.uint64(0b1001)
+    got = {tuple(map(int, p)) for p in dedup._candidates(hashes, DedupConfig(min_collisions=2))}
+    assert got == _brute_candidates(hashes, 2)
+    assert len(got) >= 2 * n // 6
+
+
+def test_crowded_buckets_are_split_not_dropped():
+    """400 clips of one 'scene': bands 0 and 1 each take one of 4 values (100 clips per bucket,
+    crowded past max_bucket=50). Copies that share only those two bands are still proposed, via
+    the (band 0, band 1) buckets of about 25 clips, and far from all pairs are."""
+    rng = np.random.default_rng(5)
+    n, f, c = 400, 3, 4
+    hashes = rng.integers(0, 2**63, size=(n, 1, c), dtype=np.uint64).repeat(f, axis=1)
+    low = rng.integers(0, 4, n).astype(np.uint64) | (rng.integers(0, 4, n).astype(np.uint64) << np.uint64(16))
+    hashes = (hashes & ~np.uint64(0xFFFFFFFF)) | low[:, None, None]
+    copies = [(i, i + 1) for i in range(0, 40, 2)]
+    for i, j in copies:
+        hashes[j] = hashes[i] ^ np.uint64(0x0001_0001_0000_0000)  # differs in bands 2 and 3
+    got = {tuple(map(int, p)) for p in dedup._candidates(hashes, DedupConfig(max_bucket=50))}
+    assert set(copies) <= got
+    assert len(got) < 0.1 * n * (n - 1) / 2
+
+
+def test_grouping_scales_without_all_pairs():
+    """2,000 clips of random content and 100 exact copies: candidates stay near the copies."""
+    rng = np.random.default_rng(0)
+    cfg = DedupConfig()
+    n = 2000
+    thumbs = rng.integers(0, 255, size=(n, cfg.frames, 2 * cfg.time_radius + 1, 8, 8), dtype=np.uint8)
+    thumbs = np.stack([cv2.resize(t.reshape(-1, 8), (cfg.thumb_size, cfg.thumb_size * t.shape[0] * t.shape[1]))
+                       .reshape(t.shape[0], t.shape[1], cfg.thumb_size, cfg.thumb_size) for t in thumbs])
+    hashes = rng.integers(0, 2**63, size=(n, cfg.frames, len(cfg.crops)), dtype=np.uint64)
+    sigs = {f"c{i:05d}": ClipSignature(hashes=hashes[i], thumbs=thumbs[i]) for i in range(n)}
+    for i in range(0, 200, 2):
+        sigs[f"c{i:05d}"] = sigs[f"c{i + 1:05d}"]
+    result = group(sigs, {})
+    assert result.candidates < 5 * 100
+    assert result.removed == {f"c{i + 1:05d}": f"c{i:05d}" for i in range(0, 200, 2)}
+
+
+def test_signature_layout_and_bad_input():
+    frames = drifting(1)
+    sig = signature(frames, DedupConfig(frames=3, time_radius=1, thumb_size=24))
+    assert sig.hashes.shape == (3, len(dedup.DEFAULT_CROPS)) and sig.hashes.dtype == np.uint64
+    assert sig.thumbs.shape == (3, 3, 24, 24) and sig.thumbs.dtype == np.uint8
+    assert signature(frames[:1]).hashes.shape[0] == 5  # a one-frame clip still has every slot
+    with pytest.raises(ValueError, match="uint8"):
+        signature(frames.astype(np.float32))
+    with pytest.raises(ValueError, match="at least one frame"):
+        signature(frames[:0])
+    with pytest.raises(ValueError, match="clip a: signature shapes .* another config"):
+        group({"a": sig, "b": signature(frames)}, {})

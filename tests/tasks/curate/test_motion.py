@@ -1,0 +1,104 @@
+"""Motion filter on synthetic camera paths over a textured plane (each frame is a crop at a
+known offset, so the true camera motion is exact)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from tasks.curate.filters import grey
+from tasks.curate.motion import MotionConfig, judge, zoom_rate
+
+H, W, FPS, T = 144, 256, 30.0, 90
+
+
+def plane(seed: int = 0, margin: int = 120) -> np.ndarray:
+    """(H + 2 margin) x (W + 2 margin) x 3 uint8 texture with blobs and sharp edges."""
+    rng = np.random.default_rng(seed)
+    h, w = H + 2 * margin, W + 2 * margin
+    img = cv2.resize(rng.random((h // 16, w // 16, 3)).astype(np.float32), (w, h), interpolation=cv2.INTER_CUBIC)
+    img = np.clip(img * 200 + 30, 0, 255).astype(np.uint8)
+    for _ in range(60):
+        c = tuple(int(v) for v in rng.integers(0, 255, 3))
+        cv2.circle(img, (int(rng.integers(w)), int(rng.integers(h))), int(rng.integers(3, 20)), c, -1)
+    return img
+
+
+def crops(path: np.ndarray, seed: int = 0, noise: float = 0.0) -> np.ndarray:
+    """T x H x W x 3 frames: crop of the plane at sub-pixel offsets path[t] = (x, y)."""
+    big = plane(seed)
+    rng = np.random.default_rng(seed + 1)
+    out = np.empty((len(path), H, W, 3), np.uint8)
+    for t, (x, y) in enumerate(path):
+        m = np.float32([[1, 0, -(120 + x)], [0, 1, -(120 + y)]])
+        frame = cv2.warpAffine(big, m, (W, H), flags=cv2.INTER_LINEAR).astype(np.float32)
+        out[t] = np.clip(frame + rng.normal(0, noise, frame.shape), 0, 255) if noise else frame
+    return out
+
+
+TIMES = np.arange(T) / FPS
+STEADY = np.zeros((T, 2))
+PAN = np.stack([np.arange(T) * 1.5, np.zeros(T)], axis=1)  # content moves left: camera pans right
+SHAKE = np.random.default_rng(3).normal(0, 4.0, (T, 2))
+
+
+def test_static_is_rejected_even_with_sensor_noise():
+    for noise in (0.0, 6.0):
+        verdict = judge(crops(STEADY, noise=noise), TIMES, MotionConfig())
+        assert verdict.reason == "static", (noise, verdict.scores)
+        assert verdict.scores["moving_fraction"] <= 0.005
+
+
+def test_pan_is_kept_and_tagged_with_its_direction():
+    verdict = judge(crops(PAN), TIMES, MotionConfig())
+    assert verdict.keep, verdict.scores
+    assert "camera:pan_right" in verdict.tags
+    # 1.5 px per frame at 30 fps over a 256 px long side.
+    assert verdict.scores["motion_global"] == pytest.approx(1.5 * FPS / W, rel=0.2)
+    assert verdict.scores["shake"] < 0.3
+    flipped = judge(crops(-PAN[:, ::-1]), TIMES, MotionConfig())
+    assert "camera:pan_up" in flipped.tags
+
+
+def test_shake_is_rejected_but_a_pan_with_local_motion_is_not():
+    assert judge(crops(SHAKE), TIMES, MotionConfig()).reason == "shake"
+    frames = crops(PAN)
+    # A bright object crossing the picture fast: phase correlation may lock on it for a few
+    # steps, which must not read as a shaking camera.
+    for t in range(30, 45):
+        cv2.rectangle(frames[t], (10 + 14 * (t - 30), 20), (90 + 14 * (t - 30), 130), (250, 250, 250), -1)
+    verdict = judge(frames, TIMES, MotionConfig())
+    assert verdict.keep, verdict.scores
+
+
+def test_variable_frame_rate_uses_timestamps():
+    # Same camera speed in px per second, sampled at irregular times.
+    rng = np.random.default_rng(5)
+    times = np.cumsum(rng.uniform(0.02, 0.05, T))
+    path = np.stack([times * 45.0, np.zeros(T)], axis=1)
+    verdict = judge(crops(path), times, MotionConfig())
+    assert verdict.keep
+    assert verdict.scores["motion_global"] == pytest.approx(45.0 / W, rel=0.2)
+
+
+def test_zoom_rate_sign_and_tag():
+    big = plane(1)
+    frames = []
+    for t in range(T):
+        s = 1.0 + 0.01 * t  # zoom in: 1 % per frame, about 30 % per second
+        m = cv2.getRotationMatrix2D((big.shape[1] / 2, big.shape[0] / 2), 0, s)
+        frames.append(cv2.warpAffine(big, m, big.shape[1::-1])[120:120 + H, 120:120 + W])
+    frames = np.stack(frames)
+    a, b = (grey(frames[i], MotionConfig().zoom_size) for i in (10, 16))
+    # Six frames apart: scale 1.16 / 1.10, a relative change of about 0.06.
+    assert zoom_rate(a, b) == pytest.approx(0.06, rel=0.3)
+    assert zoom_rate(b, a) == pytest.approx(-0.06, rel=0.3)
+    verdict = judge(frames, TIMES, MotionConfig())
+    assert "camera:zoom_in" in verdict.tags
+    assert verdict.scores["zoom"] == pytest.approx(np.log(1.01) * FPS, rel=0.5)
+
+
+def test_disabled_filter_keeps_without_scores():
+    verdict = judge(crops(STEADY), TIMES, MotionConfig(enabled=False))
+    assert verdict.keep and verdict.scores == {}
