@@ -1,0 +1,339 @@
+"""A local Prefect server and process worker on 127.0.0.1, started and stopped by PID.
+
+`serve` backs `worldline server`; `LocalStack` is the same thing as a context manager (the
+integration tests use it). The server keeps its SQLite database in `Settings().prefect_home_path`
+(`<data_root>/prefect` by default), so one data root holds one lineage file and one Prefect
+history. Logs go next to it: server.log, worker.log, deploy.log.
+
+Children run in sessions of their own: a Ctrl-C in the terminal reaches only this process,
+which then stops the worker first (with SIGINT: a Prefect worker ignores SIGTERM) and the
+server after it, each by PID, and kills only as a last resort.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from dataclasses import dataclass
+from pathlib import Path
+
+from schemas.settings import Settings
+
+PROJECT_ROOT = Path(__file__).resolve().parents[1]
+PREFECT_FILE = PROJECT_ROOT / "prefect.yaml"
+POOL = "worldline-local"
+HOST = "127.0.0.1"
+SERVER_LOG = "server.log"
+WORKER_LOG = "worker.log"
+DEPLOY_LOG = "deploy.log"
+# A server start takes 10-30 s on this two-core machine when it is busy; keep a wide margin.
+START_TIMEOUT_S = 180.0
+STOP_TIMEOUT_S = 30.0
+
+
+class StackError(RuntimeError):
+    """A server, worker or deploy step failed; the message names its log file."""
+
+
+@dataclass
+class Child:
+    """One process this module started, with the file its output goes to."""
+
+    name: str
+    proc: subprocess.Popen
+    log: Path
+
+    @property
+    def pid(self) -> int:
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        return self.proc.poll() is None
+
+    def tail(self, lines: int = 30) -> str:
+        try:
+            return "\n".join(self.log.read_text(errors="replace").splitlines()[-lines:])
+        except OSError:
+            return ""
+
+
+def free_port(host: str = HOST) -> int:
+    with socket.socket() as sock:
+        sock.bind((host, 0))
+        return sock.getsockname()[1]
+
+
+def child_env(settings: Settings, api_url: str | None = None, extra: dict[str, str] | None = None) -> dict[str, str]:
+    """Environment for every child: absolute data paths (flow runs change directory), no prompts."""
+    env = dict(os.environ)
+    env["WORLDLINE_DATA_ROOT"] = str(settings.data_root.resolve())
+    if settings.warehouse is not None:
+        env["WORLDLINE_WAREHOUSE"] = str(settings.warehouse.resolve())
+    # The server's database belongs to the data root it serves, whatever PREFECT_HOME says.
+    env["PREFECT_HOME"] = env["WORLDLINE_PREFECT_HOME"] = str(settings.prefect_home_path.resolve())
+    env["PREFECT_CLI_PROMPT"] = "false"
+    # No network here beyond package registries: telemetry would only log failures.
+    env.setdefault("PREFECT_SERVER_ANALYTICS_ENABLED", "false")
+    env.setdefault("PREFECT_SERVER_UI_SHOW_PROMOTIONAL_CONTENT", "false")
+    if api_url:
+        env["PREFECT_API_URL"] = api_url
+    env.update(extra or {})
+    return env
+
+
+def prefect_command(*args: str) -> list[str]:
+    """The Prefect CLI of this interpreter (no reliance on PATH)."""
+    return [sys.executable, "-m", "prefect", *args]
+
+
+def spawn(name: str, args: list[str], env: dict[str, str], log: Path) -> Child:
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with open(log, "ab") as out:
+        proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                                env=env, cwd=PROJECT_ROOT, start_new_session=True)
+    return Child(name, proc, log)
+
+
+def _died(child: Child) -> StackError:
+    return StackError(f"{child.name} (pid {child.pid}) exited with {child.proc.returncode}; "
+                      f"see {child.log}:\n{child.tail()}")
+
+
+def wait_until(ready, child: Child, what: str, timeout: float = START_TIMEOUT_S) -> None:
+    """Poll `ready()` twice a second until it is true; fail early if `child` exits meanwhile."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if not child.alive():
+            raise _died(child)
+        if ready():
+            return
+        time.sleep(0.5)
+    raise StackError(f"{what} not ready after {timeout:.0f} s; see {child.log}")
+
+
+def healthy(api_url: str) -> bool:
+    import httpx
+
+    try:
+        return httpx.get(f"{api_url}/health", timeout=5).status_code == 200
+    except httpx.HTTPError:
+        return False
+
+
+def start_server(settings: Settings, port: int | None = None, ui: bool = False,
+                 env: dict[str, str] | None = None) -> tuple[Child, str]:
+    """Start `prefect server start` on 127.0.0.1 (a free port unless given); returns it and its API URL.
+
+    The scheduler and the other services run inside it, so cron schedules create runs.
+    """
+    port = port or free_port()
+    api_url = f"http://{HOST}:{port}/api"
+    home = settings.prefect_home_path.resolve()
+    home.mkdir(parents=True, exist_ok=True)
+    args = prefect_command("server", "start", "--host", HOST, "--port", str(port), "--ui" if ui else "--no-ui")
+    server = spawn("prefect server", args, child_env(settings, api_url, env), home / SERVER_LOG)
+    try:
+        wait_until(lambda: healthy(api_url), server, f"prefect server at {api_url}")
+    except BaseException:
+        stop(server, signal.SIGTERM)
+        raise
+    return server, api_url
+
+
+def ensure_pool(api_url: str, pool: str = POOL) -> None:
+    """Create the process work pool unless it exists; refuse a pool of another type."""
+    from prefect.client.orchestration import SyncPrefectClient
+    from prefect.client.schemas.actions import WorkPoolCreate
+    from prefect.exceptions import ObjectNotFound
+    from prefect.workers.process import ProcessWorker
+
+    with SyncPrefectClient(api_url) as client:
+        try:
+            existing = client.read_work_pool(pool)
+        except ObjectNotFound:
+            client.create_work_pool(WorkPoolCreate(
+                name=pool, type="process", base_job_template=ProcessWorker.get_default_base_job_template()))
+            return
+    if existing.type != "process":
+        raise StackError(f"work pool {pool!r} at {api_url} is of type {existing.type!r}, not 'process'")
+
+
+def deploy_flows(api_url: str, settings: Settings, prefect_file: Path = PREFECT_FILE,
+                 env: dict[str, str] | None = None) -> str:
+    """`prefect --no-prompt deploy --all` from the project root; returns its output, raises StackError on failure."""
+    if not Path(prefect_file).is_file():
+        raise StackError(f"{prefect_file}: no such deployment file")
+    args = prefect_command("--no-prompt", "deploy", "--all", "--prefect-file", str(Path(prefect_file).resolve()))
+    log = settings.prefect_home_path.resolve() / DEPLOY_LOG
+    log.parent.mkdir(parents=True, exist_ok=True)
+    done = subprocess.run(args, cwd=PROJECT_ROOT, env=child_env(settings, api_url, env), stdin=subprocess.DEVNULL,
+                          capture_output=True, text=True, timeout=600)
+    output = done.stdout + done.stderr
+    with open(log, "a") as out:
+        out.write(f"$ {' '.join(args)}\n{output}\n")
+    if done.returncode != 0:
+        tail = "\n".join(output.splitlines()[-30:])
+        raise StackError(f"prefect deploy failed with {done.returncode}; see {log}:\n{tail}")
+    return output
+
+
+def start_worker(api_url: str, settings: Settings, pool: str = POOL, name: str | None = None,
+                 env: dict[str, str] | None = None) -> Child:
+    """Start a process worker on `pool` and wait until the server lists it."""
+    name = name or f"worldline-{uuid.uuid4().hex[:8]}"
+    args = prefect_command("worker", "start", "--pool", pool, "--type", "process", "--name", name)
+    log = settings.prefect_home_path.resolve() / WORKER_LOG
+    worker = spawn("prefect worker", args, child_env(settings, api_url, env), log)
+    try:
+        wait_until(lambda: worker_joined(api_url, pool, name), worker, f"worker {name!r} on pool {pool!r}")
+    except BaseException:
+        stop(worker, signal.SIGINT)
+        raise
+    return worker
+
+
+def worker_joined(api_url: str, pool: str, name: str) -> bool:
+    from prefect.client.orchestration import SyncPrefectClient
+    from prefect.exceptions import ObjectNotFound
+
+    with SyncPrefectClient(api_url) as client:
+        try:
+            return any(w.name == name for w in client.read_workers_for_work_pool(pool))
+        except ObjectNotFound:  # the worker creates the pool when it is missing
+            return False
+
+
+def group_members(pgid: int) -> list[int]:
+    """Live (not zombie) processes in a process group, read from /proc (Linux)."""
+    members = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if fields[0] != "Z" and int(fields[2]) == pgid:
+            members.append(int(stat.parent.name))
+    return members
+
+
+def stop(child: Child, first: signal.Signals, timeout: float = STOP_TIMEOUT_S) -> signal.Signals | None:
+    """Stop a child by PID: `first`, then SIGTERM, then SIGKILL, waiting `timeout` s after each.
+
+    Returns the signal it stopped on (None if it had already exited). Anything still in its
+    process group then gets SIGTERM and SIGKILL. (Flow runs get sessions of their own; a worker
+    that stops gracefully kills the ones still running, which is why it gets SIGINT first.)
+    """
+    stopped_by = None
+    for sig in dict.fromkeys((first, signal.SIGTERM, signal.SIGKILL)):
+        if not child.alive():
+            break
+        child.proc.send_signal(sig)
+        try:
+            child.proc.wait(timeout)
+            stopped_by = sig
+            break
+        except subprocess.TimeoutExpired:
+            continue
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        if not group_members(child.pid):
+            break
+        try:
+            os.killpg(child.pid, sig)
+        except ProcessLookupError:
+            break
+        deadline = time.monotonic() + 5
+        while group_members(child.pid) and time.monotonic() < deadline:
+            time.sleep(0.1)
+    return stopped_by
+
+
+class LocalStack:
+    """Server + work pool + deployments + worker, as a context manager. Stops both on exit."""
+
+    def __init__(self, settings: Settings | None = None, port: int | None = None, pool: str = POOL,
+                 deploy: bool = True, ui: bool = False, prefect_file: Path = PREFECT_FILE,
+                 env: dict[str, str] | None = None):
+        self.settings = settings or Settings()
+        self.port, self.pool, self.deploy, self.ui = port, pool, deploy, ui
+        self.prefect_file, self.extra_env = prefect_file, dict(env or {})
+        self.server: Child | None = None
+        self.worker: Child | None = None
+        self.api_url: str | None = None
+        self.deploy_output = ""
+
+    @property
+    def server_pid(self) -> int | None:
+        return self.server.pid if self.server else None
+
+    @property
+    def worker_pid(self) -> int | None:
+        return self.worker.pid if self.worker else None
+
+    def env(self) -> dict[str, str]:
+        """The environment a `prefect` command needs to talk to this server."""
+        return child_env(self.settings, self.api_url, self.extra_env)
+
+    def start(self) -> LocalStack:
+        try:
+            self.server, self.api_url = start_server(self.settings, self.port, self.ui, self.extra_env)
+            ensure_pool(self.api_url, self.pool)
+            if self.deploy:
+                self.deploy_output = deploy_flows(self.api_url, self.settings, self.prefect_file, self.extra_env)
+            self.worker = start_worker(self.api_url, self.settings, self.pool, env=self.extra_env)
+        except BaseException:
+            self.stop()
+            raise
+        return self
+
+    def dead(self) -> Child | None:
+        """The first child that exited on its own, if any."""
+        return next((c for c in (self.server, self.worker) if c is not None and not c.alive()), None)
+
+    def stop(self) -> dict[str, signal.Signals | None]:
+        """Worker first (it reports to the server), with SIGINT; then the server, with SIGTERM."""
+        stopped = {}
+        if self.worker is not None:
+            stopped["worker"] = stop(self.worker, signal.SIGINT)
+        if self.server is not None:
+            stopped["server"] = stop(self.server, signal.SIGTERM)
+        return stopped
+
+    def __enter__(self) -> LocalStack:
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.stop()
+
+
+def _interrupt(signum, frame):
+    raise KeyboardInterrupt
+
+
+def serve(port: int | None = None, pool: str = POOL, deploy: bool = True) -> None:
+    """Run a local server (with UI) and a process worker until Ctrl-C or SIGTERM, then stop both.
+
+    Raises StackError if either exits on its own.
+    """
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _interrupt) if main else None
+    stack = LocalStack(Settings(), port=port, pool=pool, deploy=deploy, ui=True)
+    try:
+        stack.start()
+        print(f"Prefect server pid {stack.server_pid}: API {stack.api_url}, UI {stack.api_url.removesuffix('/api')}\n"
+              f"process worker pid {stack.worker_pid} on pool {pool!r}; logs in {stack.settings.prefect_home_path}\n"
+              f"to use it: export PREFECT_API_URL={stack.api_url}\nCtrl-C stops both.", flush=True)
+        while (dead := stack.dead()) is None:
+            time.sleep(1)
+        raise _died(dead)
+    except KeyboardInterrupt:
+        print("stopping worker and server...", flush=True)
+    finally:
+        stack.stop()
+        if main:
+            signal.signal(signal.SIGTERM, previous)

@@ -1,0 +1,231 @@
+"""prefect.yaml, and a real Prefect server + process worker on 127.0.0.1 driven from the command line.
+
+The integration tests share one stack (a start costs ~20-35 s here): the deployment run first,
+the schedule second, and stopping everything by PID last; `serve` then gets a stack of its own.
+"""
+
+import ast
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from datetime import timedelta, timezone
+from pathlib import Path
+
+import pytest
+import yaml
+
+from flows.server import POOL, LocalStack, group_members
+from schemas.manifest import manifest_hash
+from schemas.settings import Settings
+from tasks.manifests import load
+from warehouse.store import Warehouse
+
+from tests.support import MANIFESTS, REPO
+
+PREFECT_YAML = yaml.safe_load((REPO / "prefect.yaml").read_text())
+LIVE = PREFECT_YAML["deployments"]
+PLANNED = PREFECT_YAML.get("planned-deployments", [])
+RUN_TIMEOUT_S = 180
+
+
+def flow_functions() -> dict[str, tuple[str, set[str], set[str]]]:
+    """Every @flow in flows/*.py: 'file.py:function' -> (flow name, parameters, required parameters)."""
+    found = {}
+    for path in sorted((REPO / "flows").glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not isinstance(node, ast.FunctionDef):
+                continue
+            for deco in node.decorator_list:
+                target = deco.func if isinstance(deco, ast.Call) else deco
+                if getattr(target, "id", None) != "flow":
+                    continue
+                names = [k.value.value for k in getattr(deco, "keywords", []) if k.arg == "name"]
+                positional = node.args.posonlyargs + node.args.args
+                params = {a.arg for a in positional + node.args.kwonlyargs}
+                required = {a.arg for a in positional[:len(positional) - len(node.args.defaults)]}
+                required |= {a.arg for a, d in zip(node.args.kwonlyargs, node.args.kw_defaults) if d is None}
+                found[f"flows/{path.name}:{node.name}"] = (names[0] if names else node.name, params, required)
+    return found
+
+
+FLOWS = flow_functions()
+
+
+def flow_name(deployment: dict) -> str:
+    """The Prefect flow name, which `prefect deployment run 'FLOW/NAME'` uses."""
+    built = FLOWS.get(deployment["entrypoint"])
+    return built[0] if built else deployment["entrypoint"].split(":")[1]
+
+
+# -- prefect.yaml, without a server ----------------------------------------------------------
+@pytest.mark.parametrize("deployment", LIVE, ids=lambda d: d["entrypoint"])
+def test_live_deployment_matches_its_flow(deployment):
+    assert deployment["entrypoint"] in FLOWS, f"prefect.yaml: no @flow at {deployment['entrypoint']}"
+    _, names, required = FLOWS[deployment["entrypoint"]]
+    params = set(deployment.get("parameters", {}))
+    assert params <= names, f"{deployment['entrypoint']} takes no {sorted(params - names)}"
+    assert required <= params, f"{deployment['entrypoint']} needs {sorted(required - params)} for a scheduled run"
+
+
+@pytest.mark.parametrize("deployment", PLANNED, ids=lambda d: d["entrypoint"])
+def test_planned_deployment_is_not_built_yet(deployment):
+    # `prefect deploy --all` fails on an entrypoint it cannot import, so a flow not built yet
+    # stays out of `deployments:`; once built, it must move in or it is never deployed.
+    assert deployment["entrypoint"] not in FLOWS and not (REPO / deployment["entrypoint"].split(":")[0]).exists(), (
+        f"{deployment['entrypoint']} exists now: move its block from planned-deployments to deployments in prefect.yaml")
+
+
+@pytest.mark.parametrize("deployment", LIVE + PLANNED, ids=lambda d: d["entrypoint"])
+def test_every_deployment_names_a_valid_manifest_and_the_pool(deployment):
+    assert deployment["work_pool"]["name"] == POOL
+    manifests = [v for k, v in deployment["parameters"].items() if k in ("manifest", "manifest_path")]
+    takes_one = deployment["entrypoint"] not in FLOWS or FLOWS[deployment["entrypoint"]][1] & {"manifest", "manifest_path"}
+    if not takes_one:  # corpus and demo make their own data
+        assert manifests == []
+        return
+    assert len(manifests) == 1, f"{deployment['entrypoint']} names no manifest"
+    assert (REPO / manifests[0]).resolve().parent == MANIFESTS
+    load(REPO / manifests[0])
+
+
+def test_every_flow_has_a_deployment_and_curate_runs_nightly():
+    deployed = {d["entrypoint"] for d in LIVE}
+    assert set(FLOWS) <= deployed, f"flows without a deployment in prefect.yaml: {sorted(set(FLOWS) - deployed)}"
+    flows = {flow_name(d) for d in LIVE + PLANNED}
+    assert flows >= {"register", "simulate", "curate", "tokenize", "train", "panels", "evaluate", "loop"}
+    curate = next(d for d in LIVE + PLANNED if flow_name(d) == "curate")
+    (schedule,) = curate["schedules"]
+    minute, hour, *rest = schedule["cron"].split()
+    assert rest == ["*", "*", "*"] and int(hour) < 6 and schedule["timezone"] == "UTC"
+    assert curate["parameters"]["inputs"] == [".worldline/inbox"]
+    pull = PREFECT_YAML["pull"][0]["prefect.deployments.steps.set_working_directory"]
+    assert pull["directory"] == "{{ project-root.stdout }}"
+
+
+# -- a real server and worker -------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    settings = Settings(data_root=tmp_path_factory.mktemp("stack"))
+    # The worker polls every 10 s by default; 1 s keeps the run test short.
+    stack = LocalStack(settings, env={"PREFECT_WORKER_QUERY_SECONDS": "1"})
+    stack.start()
+    yield stack
+    stack.stop()
+
+
+def prefect_cli(stack: LocalStack, *args: str) -> subprocess.CompletedProcess:
+    done = subprocess.run([sys.executable, "-m", "prefect", *args], cwd=REPO, env=stack.env(),
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stdout + done.stderr
+    return done
+
+
+def client(stack: LocalStack):
+    from prefect.client.orchestration import SyncPrefectClient
+
+    return SyncPrefectClient(stack.api_url)
+
+
+def wait_final(stack: LocalStack, flow_run_id: str):
+    with client(stack) as api:
+        deadline = time.monotonic() + RUN_TIMEOUT_S
+        while time.monotonic() < deadline:
+            run = api.read_flow_run(flow_run_id)
+            if run.state and run.state.is_final():
+                return run
+            assert stack.dead() is None, stack.dead().tail()
+            time.sleep(1)
+    pytest.fail(f"flow run {flow_run_id} not finished after {RUN_TIMEOUT_S} s:\n{stack.worker.tail()}")
+
+
+@pytest.mark.slow
+def test_deployment_run_from_the_command_line_lands_in_lineage(stack):
+    register = next(d for d in LIVE if flow_name(d) == "register")
+    manifest = "manifests/bin_pick_dim_forklift.yaml"  # not the deployment's default: --param must win
+    assert register["parameters"]["manifest_path"] != manifest
+    done = prefect_cli(stack, "deployment", "run", f"register/{register['name']}", "--param", f"manifest_path={manifest}")
+    flow_run_id = re.search(r"UUID: ([0-9a-f-]{36})", done.stdout).group(1)
+
+    run = wait_final(stack, flow_run_id)
+    assert run.state.type.value == "COMPLETED", f"{run.state}\n{stack.worker.tail()}"
+    with client(stack) as api:
+        deployment = api.read_deployment(run.deployment_id)
+    # the pull step moved the run to this checkout, wherever the worker started it
+    assert deployment.pull_steps == [{"prefect.deployments.steps.set_working_directory": {"directory": str(REPO)}}]
+
+    digest = manifest_hash(load(REPO / manifest))
+    with Warehouse(stack.settings.warehouse_path, read_only=True) as wh:
+        _, runs = wh.query("SELECT run_id, prefect_flow_run_id, status, manifest_hash, params->>'manifest' "
+                           "FROM runs WHERE flow = 'register'")
+        _, manifests = wh.query("SELECT manifest_hash, name, source_uri FROM manifests")
+    assert runs == [(flow_run_id, flow_run_id, "completed", digest, manifest)]
+    assert manifests == [(digest, "bin-pick-dim-forklift", manifest)]
+
+
+@pytest.mark.slow
+def test_nightly_schedule_creates_scheduled_runs(stack):
+    from prefect.client.schemas.filters import (DeploymentFilter, DeploymentFilterId, FlowRunFilter,
+                                                FlowRunFilterState, FlowRunFilterStateType)
+    from prefect.client.schemas.objects import StateType
+
+    curate = next(d for d in LIVE if flow_name(d) == "curate")
+    minute, hour = (int(f) for f in curate["schedules"][0]["cron"].split()[:2])
+    with client(stack) as api:
+        deployment = api.read_deployment_by_name(f"curate/{curate['name']}")
+        assert [s.schedule.cron for s in deployment.schedules] == [curate["schedules"][0]["cron"]]
+        only_scheduled = FlowRunFilter(state=FlowRunFilterState(type=FlowRunFilterStateType(any_=[StateType.SCHEDULED])))
+        deadline = time.monotonic() + 90  # the scheduler visits new deployments every 5 s
+        while time.monotonic() < deadline:
+            runs = api.read_flow_runs(deployment_filter=DeploymentFilter(id=DeploymentFilterId(any_=[deployment.id])),
+                                      flow_run_filter=only_scheduled)
+            if len(runs) >= 3:
+                break
+            time.sleep(2)
+    assert len(runs) >= 3, f"{len(runs)} scheduled runs after 90 s:\n{stack.server.tail()}"
+    starts = sorted(r.expected_start_time.astimezone(timezone.utc) for r in runs)
+    assert all((t.hour, t.minute, t.second) == (hour, minute, 0) for t in starts)
+    assert all(b - a == timedelta(days=1) for a, b in zip(starts, starts[1:]))
+    assert all(r.parameters == curate["parameters"] for r in runs)
+
+
+@pytest.mark.slow
+def test_stop_ends_server_and_worker_by_pid(stack):
+    pids = {"server": stack.server_pid, "worker": stack.worker_pid}
+    stopped = stack.stop()
+    # graceful: the worker on SIGINT, the server on SIGTERM; no SIGKILL was needed
+    assert stopped == {"worker": signal.SIGINT, "server": signal.SIGTERM}
+    for name, pid in pids.items():
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+        assert group_members(pid) == [], f"{name} left processes behind"
+    assert Path(stack.settings.prefect_home_path, "server.log").stat().st_size > 0
+
+
+@pytest.mark.slow
+def test_serve_runs_until_ctrl_c_then_leaves_nothing_behind(tmp_path):
+    env = {**os.environ, "WORLDLINE_DATA_ROOT": str(tmp_path)}
+    proc = subprocess.Popen([sys.executable, "-c", "from flows.server import serve; serve(deploy=False)"],
+                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    try:
+        for line in proc.stdout:  # ends when serve exits, so a failed start cannot hang here
+            lines.append(line)
+            if line.startswith("Ctrl-C"):
+                break
+        text = "".join(lines)
+        pids = [int(p) for p in re.findall(r"pid (\d+)", text)]
+        assert len(pids) == 2 and "PREFECT_API_URL=http://127.0.0.1:" in text, text
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=120) == 0, proc.stdout.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    for pid in pids:
+        with pytest.raises(ProcessLookupError):
+            os.kill(pid, 0)
+        assert group_members(pid) == []
+    assert (tmp_path / "prefect" / "server.log").is_file() and (tmp_path / "prefect" / "worker.log").is_file()
