@@ -10,9 +10,12 @@ from pathlib import Path
 import av
 import numpy as np
 
+from tasks.curate.encode import EncodeConfig, x264_options
+
 
 def write_mp4(path: Path, frames: Iterable[np.ndarray], fps: float, crf: int = 20, preset: str = "veryfast") -> Path:
-    """frames: H x W x 3 uint8 RGB (even H and W). One x264 thread, so the same frames give the same bytes."""
+    """frames: H x W x 3 uint8 RGB (even H and W). Same frames, same bytes: one x264 thread, and
+    x264's AVX-512 code kept off (it reads memory it never wrote; see tasks/curate/encode.py)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp.mp4")
@@ -26,7 +29,7 @@ def write_mp4(path: Path, frames: Iterable[np.ndarray], fps: float, crf: int = 2
                     stream.height, stream.width = image.shape[:2]
                     stream.pix_fmt = "yuv420p"
                     stream.thread_count = 1
-                    stream.options = {"crf": str(crf), "preset": preset, "threads": "1"}
+                    stream.options = {**x264_options(EncodeConfig(preset=preset, crf=crf)), "threads": "1"}
                     stream.codec_context.flags |= av.codec.context.Flags.bitexact
                 for packet in stream.encode(av.VideoFrame.from_ndarray(image, format="rgb24")):
                     container.mux(packet)

@@ -53,8 +53,8 @@ def test_same_seed_same_bytes_other_seed_differs(tmp_path, manifest, episode):
         assert np.array_equal(again.frames[cam], frames), cam
     a = write_episode(episode, tmp_path / "a", digest, 0)
     b = write_episode(again, tmp_path / "b", digest, 0)
-    # The step table is byte-identical. MP4 bytes are not compared: x264 output was seen to
-    # differ now and then between two encodes of identical frames in one process (open question).
+    for cam in a.videos:
+        assert a.videos[cam].read_bytes() == b.videos[cam].read_bytes(), cam
     assert a.table.read_bytes() == b.table.read_bytes()
     assert a.meta.read_text() == b.meta.read_text()
     other = rollout(manifest, 8)
