@@ -139,7 +139,8 @@ class ArmController:
         yaw = _nearest_equivalent(math.atan2(u[1], u[0]) - math.pi / 2, self.target_yaw, math.pi)
         low, high = self.scene.rim_z + 0.025, self.scene.rim_z + 0.14
         tcp = data.site_xpos[self.site]
-        lateral = abs(float(np.cross(u, tcp[:2] - contact)))
+        offset = tcp[:2] - contact
+        lateral = abs(float(u[0] * offset[1] - u[1] * offset[0]))  # 2-D cross product
         p, step, grip = self.phase, MAX_STEP, 1.0
         if p == "approach":
             goal = np.array([*(contact - u * 0.05), high])
