@@ -165,6 +165,18 @@ def simulate(manifest: Path, episodes: int = typer.Option(2, min=1, max=10_000, 
 
 
 @app.command()
+def corpus(minutes: float = typer.Option(1.0, min=0.05, max=600, help="minutes of footage"),
+           seed: int = typer.Option(0, min=0, help="same seed, same videos and truth"),
+           width: int = typer.Option(640, min=32, max=3840), height: int = typer.Option(360, min=32, max=2160),
+           fps: float = typer.Option(30.0, min=1, max=120)) -> None:
+    """Generate a labelled raw-footage corpus with ground truth (Prefect flow `corpus`)."""
+    from flows.corpus import corpus as corpus_flow
+
+    result = corpus_flow(minutes=minutes, seed=seed, width=width, height=height, fps=fps)
+    out.print(f"{len(result['videos'])} videos with ground truth under corpus/seed_{seed:06d}", highlight=False)
+
+
+@app.command()
 def demo() -> None:
     """Run the whole loop on built-in generated data, then print a lineage summary."""
     from flows.demo import demo as demo_flow

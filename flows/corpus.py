@@ -1,0 +1,32 @@
+"""corpus: a reproducible labelled raw-footage corpus (simulator and procedural segments)."""
+
+from __future__ import annotations
+
+import time
+
+from prefect import flow, task
+
+from flows.recording import recorded_run
+from schemas.hashing import stable_id
+from schemas.records import LineageBatch, StageRunRecord
+from schemas.settings import Settings
+from tasks.corpus import generate
+
+generate_corpus = task(generate.generate_corpus, name="generate-corpus", retries=1)
+
+
+@flow(name="corpus", log_prints=True)
+def corpus(minutes: float = 1.0, seed: int = 0, width: int = 640, height: int = 360, fps: float = 30.0) -> dict:
+    """Raw videos with a ground-truth JSON beside each, under <data_root>/corpus/seed_<seed>."""
+    settings = Settings()
+    params = {"minutes": minutes, "seed": seed, "width": width, "height": height, "fps": fps}
+    with recorded_run("corpus", settings, params=params) as run:
+        key = stable_id("corpus", *(f"{k}={v}" for k, v in sorted(params.items())))
+        t0 = time.perf_counter()
+        videos = generate_corpus(settings.data_root, seed=seed, minutes=minutes, width=width, height=height, fps=fps)
+        stage = StageRunRecord(stage_run_id=run.stage_run_id("corpus", key), run_id=run.run_id, stage="corpus",
+                               input_key=key, n_out=len(videos), seconds=round(time.perf_counter() - t0, 3),
+                               attrs=params)
+        run.write(LineageBatch(stage_runs=[stage]).extend(generate.corpus_lineage(videos, stage.stage_run_id, None, settings.data_root)))
+        print(f"corpus seed {seed}: {len(videos)} videos, {minutes} min at {width}x{height}")
+        return {"videos": [str(v.video) for v in videos], "seed": seed}
