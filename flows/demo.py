@@ -6,6 +6,7 @@ from pathlib import Path
 
 from prefect import flow
 
+from flows.corpus import corpus
 from flows.curate import curate
 from flows.register import register
 from flows.simulate import simulate
@@ -19,7 +20,8 @@ DEMO = {"conveyor_push.yaml": 3, "bin_pick_dim_forklift.yaml": 2}
 
 @flow(name="demo", log_prints=True)
 def demo() -> list[dict]:
-    """Register every manifest, simulate episodes, curate their camera videos per manifest."""
+    """Register every manifest, simulate episodes and curate them per manifest, then generate a
+    labelled minute of raw footage (simulator and procedural, with defects) and curate it."""
     for path in sorted(MANIFESTS.glob("*.yaml")):
         register(str(path))
     results = []
@@ -28,4 +30,6 @@ def demo() -> list[dict]:
         digest = simulate(manifest, episodes=episodes)["manifest_hash"]
         folder = paths.resolve(Settings().data_root, paths.EPISODES_OF_MANIFEST, manifest_hash=digest)
         results.append(curate([str(folder)], manifest))
+    footage = corpus(minutes=1.0, seed=1, width=640, height=360)
+    results.append(curate(footage["videos"]))
     return results

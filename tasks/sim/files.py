@@ -13,7 +13,7 @@ import pyarrow.parquet as pq
 
 from schemas import paths
 from schemas.hashing import sha256_file, stable_id
-from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord
+from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord, raw_video_id
 from tasks.mp4 import write_mp4
 
 
@@ -94,7 +94,9 @@ def episode_lineage(files: EpisodeFiles, manifest_hash: str, stage_run_id: str, 
     )
     for camera, video in sorted(files.videos.items()):
         sha = sha256_file(str(video))
-        vid = stable_id("episode_video", sha)
+        # The same id curate gives a raw video with these bytes: curating episode videos then
+        # extends this lineage instead of starting a second, disconnected one.
+        vid = raw_video_id(sha)
         batch.artifacts.append(ArtifactRecord(artifact_id=vid, kind="episode_video", uri=uri(video), sha256=sha,
                                               bytes=video.stat().st_size, manifest_hash=manifest_hash,
                                               stage_run_id=stage_run_id, attrs={"camera": camera, **attrs}))

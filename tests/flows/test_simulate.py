@@ -11,7 +11,7 @@ from tests.support import MANIFESTS
 def _small_manifest(tmp_path: Path) -> Path:
     text = (MANIFESTS / "conveyor_push.yaml").read_text()
     path = tmp_path / "small.yaml"
-    path.write_text(text.replace("horizon_s: 5.0", "horizon_s: 1.0").replace("[128, 128]", "[64, 64]"))
+    path.write_text(text.replace("horizon_s: 5.0", "horizon_s: 2.5").replace("[128, 128]", "[64, 64]"))
     return path
 
 
@@ -27,3 +27,17 @@ def test_simulate_records_episodes_and_skips_finished_ones(prefect_harness, data
     assert dict(kinds) == {"episode": 3, "episode_video": 3, "manifest": 1}
     assert [r[1] for r in chain] == ["episode_video", "episode", "manifest"]
     assert len(list((data_root / "episodes").rglob("meta.json"))) == 3
+
+
+def test_curating_episode_videos_extends_their_lineage(prefect_harness, data_root, tmp_path):
+    from flows.curate import curate
+
+    manifest = _small_manifest(tmp_path)
+    digest = simulate(str(manifest), 1)["manifest_hash"]
+    curate([str(data_root / "episodes")], str(manifest))
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, clips = wh.query("SELECT artifact_id FROM artifacts WHERE kind = 'clip'")
+        sql, _ = audit.bind("ancestry", {"artifact": "x"})
+        _, chain = wh.query(sql, {"artifact": clips[0][0]})
+    kinds = [r[1] for r in chain]
+    assert kinds[:2] == ["clip", "episode_video"] and "episode" in kinds and chain[-1][2] == digest
