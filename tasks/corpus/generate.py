@@ -13,6 +13,7 @@ from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from schemas import paths
@@ -58,7 +59,13 @@ def _content(seg: SegmentPlan, width: int, height: int, fps: float, sims: Sequen
         from tasks.sim.segments import sim_segment
 
         manifest = _strip(sims[c.manifest], config.sim_strip_stressors)
-        return iter(sim_segment(manifest, c.seed % 2**31, n, width, height, c.camera, fps, config.sim_max_width))
+        # Render small and scale each frame up as it is encoded: a 10 s take at 720p would be 830 MB.
+        sw = min(width, config.sim_max_width) // 2 * 2
+        sh = max(16, round(sw * height / width) // 2 * 2)
+        small = sim_segment(manifest, c.seed % 2**31, n, sw, sh, c.camera, fps, config.sim_max_width)
+        if (sh, sw) == (height, width):
+            return iter(small)
+        return (cv2.resize(f, (width, height), interpolation=cv2.INTER_LINEAR) for f in small)
     source = nonphysical.source(c.kind, c.seed, width, height, fps)
     return (source.frame(i) for i in range(n))
 
