@@ -72,3 +72,34 @@ def test_mobile_rig_drives():
     ep = rollout(m.model_copy(update={"horizon_s": 2.0}), 0)
     assert set(ep.frames) == {"front", "rear"} and ep.frames["front"].shape[1:] == (96, 160, 3)
     assert np.abs(np.diff(ep.joint_pos[:, :2], axis=0)).sum() > 0.1  # the base moved
+
+
+def test_camera_jitter_moves_the_view_frame_to_frame(base):
+    from schemas.manifest import CameraJitter
+
+    still = rollout(_with(base, DimLight(lux=500)), 1).frames["front_left"]
+    shaky = rollout(_with(base, DimLight(lux=500), CameraJitter(amplitude_deg=3.0, frequency_hz=6.0)), 1).frames["front_left"]
+    assert np.array_equal(still[0].shape, shaky[0].shape)
+    assert np.abs(shaky.astype(int) - still).mean() > 2
+
+
+def test_distractors_are_extra_bodies(base):
+    from schemas.manifest import Distractors
+
+    plain = build_scene(base, 1)
+    busy = build_scene(_with(base, Distractors(count=4)), 1)
+    assert busy.model.nbody >= plain.model.nbody + 4
+
+
+def test_menagerie_ur5e_with_robotiq_gripper(base, shared_data):
+    from schemas.manifest import Embodiment
+    from tasks.sim.scene import SimConfig
+
+    ur5e = base.model_copy(update={"horizon_s": 0.5,
+                                   "embodiment": Embodiment(kind="arm", robot="ur5e", mjcf="universal_robots_ur5e/ur5e.xml")})
+    config = SimConfig(robots_root=shared_data / "robots")
+    scene = build_scene(ur5e, 0, config)
+    names = {scene.model.body(i).name for i in range(scene.model.nbody)}
+    assert any("wrist_3" in n for n in names) and any("pad" in n or "driver" in n for n in names)
+    ep = rollout(ur5e, 0, config)
+    assert ep.frames["front_left"].shape[0] == 15 and ep.joint_pos.shape[1] >= 6
