@@ -1,8 +1,10 @@
 """MuJoCo scenario episodes: scene from a manifest, scripted control, headless rendering.
 
-Modules: `robots` (arms and mobile base), `scene` (the world and its stressors), `control`
-(scripted controllers), `render` (multi-camera offscreen renderer), `episode` (rollout and
-judging), `files` (MP4 + Parquet + meta.json and lineage), `segments` (footage for the corpus).
+Modules: `robots` (built-in arm, MJCF arm + gripper, mobile base), `scene` (the world from a
+manifest and a seed), `stressors` (forklift, occluder, distractors, appearance), `kinematics`
+(differential IK), `control` (scripted controllers), `render` (multi-camera offscreen
+renderer), `episode` (rollout and judging), `files` (MP4 + Parquet + meta.json, lineage),
+`segments` (continuous footage for the raw corpus).
 """
 
 import os

@@ -27,6 +27,7 @@ MAX_YAW_STEP = 0.08
 NOISE_STEP = 0.01  # m: per-step std of commanded-pose noise at controller_noise = 1
 NOISE_AIM = 0.1  # m: std of the per-attempt aim error at controller_noise = 1
 FINGER_REACH = 0.018  # closed fingers' half thickness along the push direction
+STOP_GAP = 0.45 + 0.35 + 0.25  # forklift half width + base half length + margin (m)
 
 
 def body_yaw(quat: np.ndarray) -> float:
@@ -69,7 +70,6 @@ class ArmController:
         self.start_xy: np.ndarray | None = None
         self.target_pos = np.zeros(3)
         self.target_yaw = 0.0
-        self.held = False
 
     def _aim(self) -> np.ndarray:
         return self.rng.normal(0.0, self.noise * NOISE_AIM, 2) if self.noise else np.zeros(2)
@@ -89,7 +89,9 @@ class ArmController:
 
     def _bin_pick(self, data) -> tuple[np.ndarray, float, float, float]:
         pkg = data.xpos[self.body]
-        yaw = _nearest_equivalent(body_yaw(data.xquat[self.body]), self.target_yaw, math.pi)
+        # Close across the box's short side (its y axis): ee yaw + grip_axis = box yaw + 90 deg.
+        yaw = _nearest_equivalent(body_yaw(data.xquat[self.body]) + math.pi / 2 - self.scene.grip_axis,
+                                  self.target_yaw, math.pi)
         aim = pkg[:2] + self.bias
         rest_z = self.scene.initial_qpos[self.model.jnt_qposadr[self.model.body_jntadr[self.body]] + 2]
         lift_z = self.scene.rim_z + self.scene.manifest.evaluation.lift_height_m + 0.2
@@ -135,8 +137,8 @@ class ArmController:
         half = self.scene.target_half
         reach = abs(half[0] * math.cos(box_yaw - math.atan2(u[1], u[0]))) + abs(half[1] * math.sin(box_yaw - math.atan2(u[1], u[0])))
         contact = pkg - u * (reach + FINGER_REACH + 0.004) + self.bias * 0.3
-        # Closed fingers make a paddle wide along hand x: face it along the push (hand y || u).
-        yaw = _nearest_equivalent(math.atan2(u[1], u[0]) - math.pi / 2, self.target_yaw, math.pi)
+        # Closed fingers make a paddle wide across their closing axis: point that axis along u.
+        yaw = _nearest_equivalent(math.atan2(u[1], u[0]) - self.scene.grip_axis, self.target_yaw, math.pi)
         low, high = self.scene.rim_z + 0.025, self.scene.rim_z + 0.14
         tcp = data.site_xpos[self.site]
         offset = tcp[:2] - contact
@@ -224,28 +226,30 @@ class DriveController:
 
     def reset(self, data: mujoco.MjData) -> None:
         self.home_x = float(data.qpos[self.qadr[0]])
-        self.fork_y = float(data.mocap_pos[0][1]) if self.fork else None
+        self.fork_q = int(self.model.joint("forklift_slide").qposadr[0]) if self.fork else -1
+        self.fork_y = float(data.qpos[self.fork_q]) if self.fork else None
 
-    def _crossing_soon(self, data, x: float) -> bool:
+    def _crossing_soon(self, data, x: float, heading: float) -> bool:
+        """True while the forklift is in, or within a second of, the aisle ahead of the base."""
         if not self.fork:
             return False
-        fy = float(data.mocap_pos[0][1])
+        fy = float(data.qpos[self.fork_q])
         speed = (fy - self.fork_y) / self.dt
         self.fork_y = fy
         # World y span of the forklift (forks lead along +y), projected one second ahead.
         front, rear = fy + FORKLIFT_LENGTH * 0.73 + max(speed, 0.0) * 1.0, fy - FORKLIFT_LENGTH * 0.42
-        lane = self.scene.lane_x
-        in_lane_ahead = x < lane - 0.45 - 0.35 and x > lane - 4.0
-        return in_lane_ahead and front > -1.0 and rear < 1.0
+        gap = heading * (self.scene.lane_x - x)  # distance to the lane along the direction of travel
+        return STOP_GAP - 0.25 < gap < 4.0 and front > -1.0 and rear < 1.0
 
     def step(self, data: mujoco.MjData) -> np.ndarray:
         x, y = (float(v) for v in data.qpos[self.qadr])
         if self.repeat and abs(self.goal_x - x) < 0.1:
             self.goal_x, self.home_x = self.home_x, self.goal_x
         want = np.array([np.clip(1.5 * (self.goal_x - x), -self.VMAX, self.VMAX), -2.0 * y])
-        if self._crossing_soon(data, x):
-            stop = self.scene.lane_x - 0.45 - 0.35 - 0.25
-            want[0] = min(want[0], max(0.0, 2.0 * (stop - x)))
+        heading = 1.0 if self.goal_x >= x else -1.0
+        if self._crossing_soon(data, x, heading):
+            room = heading * (self.scene.lane_x - x) - STOP_GAP  # how far to the stop line
+            want[0] = heading * min(heading * want[0], max(0.0, 2.0 * room))
         self.v = self.v + np.clip(want - self.v, -self.ACCEL * self.dt, self.ACCEL * self.dt)
         action = self.v + (self.rng.normal(0.0, self.noise * 0.3, 2) if self.noise else 0.0)
         data.ctrl[self.acts] = action

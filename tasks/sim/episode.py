@@ -17,6 +17,7 @@ import tasks.sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 import mujoco
 from schemas.manifest import ScenarioManifest
 from tasks.sim.control import make_controller
+from tasks.sim.files import EpisodeFiles, episode_lineage, write_episode  # noqa: F401  (re-exported)
 from tasks.sim.render import MultiCameraRenderer, jitter_angles
 from tasks.sim.scene import Scene, SimConfig, build_scene, rng_for
 from tasks.sim.stressors import FORKLIFT_LENGTH, FORKLIFT_PARK_Y, forklift_position
@@ -71,7 +72,9 @@ class Simulation:
         self.fork = scene.manifest.stressor("forklift_crossing")
         self.cyclic = cyclic_forklift
         if self.fork:
-            self.data.mocap_pos[0] = forklift_position(self.fork, scene.lane_x, 0.0)
+            joint = self.model.joint("forklift_slide")
+            self.fork_q, self.fork_v = int(joint.qposadr[0]), int(joint.dofadr[0])
+            self._drive_forklift()
         mujoco.mj_forward(self.model, self.data)
         self.controller = make_controller(scene, seed, repeat)
         self.controller.reset(self.data)
@@ -85,6 +88,10 @@ class Simulation:
             return t
         period = (2 * abs(FORKLIFT_PARK_Y) + FORKLIFT_LENGTH) / self.fork.speed_mps + 1.0
         return self.fork.start_s + (t - self.fork.start_s) % period if t > self.fork.start_s else t
+
+    def _drive_forklift(self) -> None:
+        y, speed = forklift_position(self.fork, self._fork_time(self.data.time))
+        self.data.qpos[self.fork_q], self.data.qvel[self.fork_v] = y, speed
 
     def _check_forklift(self) -> None:
         d, m = self.data, self.model
@@ -107,14 +114,16 @@ class Simulation:
         if self.estop_reason is None:
             self.last_action = self.controller.step(self.data)
         else:
-            # Everything halts: the arm holds its joint targets, a base stops, the forklift parks.
+            # Everything halts: the arm holds its joint targets, a base stops, the forklift brakes.
             if self.scene.base is not None:
                 self.data.ctrl[:] = 0.0
             if self.scene.manifest.embodiment.action_space != "joint_position":
                 self.last_action = np.zeros_like(self.last_action)
         for _ in range(self.substeps):
             if self.fork and self.estop_reason is None:
-                self.data.mocap_pos[0] = forklift_position(self.fork, self.scene.lane_x, self._fork_time(self.data.time))
+                self._drive_forklift()
+            elif self.fork:
+                self.data.qvel[self.fork_v] = 0.0
             mujoco.mj_step(self.model, self.data)
             if self.fork and self.estop_reason is None:
                 self._check_forklift()
@@ -159,7 +168,9 @@ def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig
     sim = Simulation(scene, seed)
     m, d = sim.model, sim.data
     steps = round(manifest.horizon_s * config.control_hz)
-    joints = [j for j in range(m.njnt) if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE]
+    # The robot's joints: every joint but the objects' free joints and the forklift's slide.
+    joints = [j for j in range(m.njnt)
+              if m.jnt_type[j] != mujoco.mjtJoint.mjJNT_FREE and m.joint(j).name != "forklift_slide"]
     qadr, vadr = m.jnt_qposadr[joints], m.jnt_dofadr[joints]
     objs = [m.body(o).id for o in scene.objects]
     rest_z = float(scene.initial_qpos[m.jnt_qposadr[m.body_jntadr[objs[0]]] + 2])
@@ -190,7 +201,7 @@ def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig
             out["estop"].append(sim.estop_reason is not None)
             out["action"].append(sim.advance(capture))
     flag = np.array(out["flag"], bool)
-    success, reason = _verdict(sim, flag, rest_z)
+    success, reason = _verdict(sim, rest_z)
     return Episode(manifest=manifest, seed=seed, control_hz=config.control_hz,
                    joint_names=tuple(m.joint(j).name for j in joints), object_names=scene.objects,
                    time=np.array(out["time"]), joint_pos=np.array(out["qpos"]), joint_vel=np.array(out["qvel"]),
@@ -200,7 +211,7 @@ def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig
                    success=success, reason=reason, stressor_values=scene.stressor_values)
 
 
-def _verdict(sim: Simulation, flag: np.ndarray, rest_z: float) -> tuple[bool, str]:
+def _verdict(sim: Simulation, rest_z: float) -> tuple[bool, str]:
     """Success needs the target to hold after the last step and no e-stop at any time."""
     final = _target_holds(sim, rest_z)
     scene, ev = sim.scene, sim.scene.manifest.evaluation

@@ -8,12 +8,14 @@ fingertips, arm joints driven by position actuators, and one gripper command in 
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 import mujoco
+from tasks.sim.kinematics import solve_ik, yaw_quat
 
 G = mujoco.mjtGeom
 HINGE = mujoco.mjtJoint.mjJNT_HINGE
@@ -24,8 +26,9 @@ SLIDE = mujoco.mjtJoint.mjJNT_SLIDE
 PEDESTAL_TOP = 0.28
 LINKS = (0.08, 0.32, 0.30, 0.05, 0.06)
 FINGER_HALF = (0.022, 0.008, 0.045)
-FINGER_OPEN, FINGER_CLOSED = 0.065, 0.004
+FINGER_OPEN, FINGER_CLOSED = 0.065, 0.010  # closed: 4 mm between the pads, so they never touch
 TCP_DEPTH = 0.095  # palm to fingertip centre
+MJCF_RISER = 0.3
 
 
 @dataclass(frozen=True)
@@ -37,7 +40,7 @@ class ArmSpec:
     gripper_actuators: tuple[str, ...]
     gripper_open: tuple[float, ...]
     gripper_closed: tuple[float, ...]
-    home: tuple[float, ...]  # joint angles near a comfortable pose above the workspace
+    home: tuple[float, ...]  # IK seed for the start pose (a second seed turns the base half a turn)
     link_bodies: tuple[str, ...]  # every body of the robot, for contact checks
 
 
@@ -120,7 +123,11 @@ def add_mjcf_arm(spec: mujoco.MjSpec, arm_file: Path, gripper_file: Path | None)
     """
     if not arm_file.is_file():
         raise FileNotFoundError(f"{arm_file}: robot MJCF not found")
-    spec.attach(mujoco.MjSpec.from_file(str(arm_file)), prefix="robot_", frame=spec.worldbody.add_frame())
+    # On a riser like the built-in arm's, so a floor bin at x=0.45 is within comfortable reach.
+    spec.worldbody.add_geom(name="pedestal", type=G.mjGEOM_CYLINDER, pos=[0, 0, MJCF_RISER / 2],
+                            size=[0.08, MJCF_RISER / 2, 0], rgba=(0.25, 0.25, 0.28, 1.0))
+    spec.attach(mujoco.MjSpec.from_file(str(arm_file)), prefix="robot_",
+                frame=spec.worldbody.add_frame(pos=[0, 0, MJCF_RISER]))
     site = spec.site("robot_attachment_site")
     if site is None:
         raise ValueError(f"{arm_file}: no site named attachment_site at the flange")
@@ -135,8 +142,11 @@ def add_mjcf_arm(spec: mujoco.MjSpec, arm_file: Path, gripper_file: Path | None)
     ee = flange.add_body(name="ee", pos=list(fpos), quat=list(flip))
     depth, grip, g_open, g_closed = 0.0, [], [], []
     if gripper_file is not None and gripper_file.is_file():
-        spec.attach(mujoco.MjSpec.from_file(str(gripper_file)), prefix="gripper_",
-                    frame=flange.add_frame(pos=list(fpos), quat=list(fquat)))
+        # Menagerie grippers are tuned for elliptic cones and impratio 10 (slip-free grasps).
+        # Options only count on the top-level spec; copying the gripper's avoids a conflict warning.
+        gspec = mujoco.MjSpec.from_file(str(gripper_file))
+        spec.option.cone, spec.option.impratio = gspec.option.cone, gspec.option.impratio
+        spec.attach(gspec, prefix="gripper_", frame=flange.add_frame(pos=list(fpos), quat=list(fquat)))
         pinch = spec.site("gripper_pinch")
         depth = float(np.linalg.norm(pinch.pos)) + 0.011 if pinch is not None else 0.15
         for act in spec.actuators:
@@ -146,6 +156,9 @@ def add_mjcf_arm(spec: mujoco.MjSpec, arm_file: Path, gripper_file: Path | None)
                 g_closed.append(float(act.ctrlrange[1]))
     ee.add_site(name="tcp", pos=[0, 0, -depth], size=[0.006, 0, 0], rgba=(1, 0, 0, 0))
     bodies = [b.name for b in spec.bodies if b.name.startswith(("robot_", "gripper_"))] + ["ee"]
+    for body in spec.bodies:
+        if body.name in bodies:
+            body.gravcomp = 1.0  # Menagerie servos sag ~2 cm under gravity; the controller is kinematic
     return ArmSpec(joints=tuple(joints), actuators=tuple(by_joint[j] for j in joints),
                    gripper_actuators=tuple(grip), gripper_open=tuple(g_open), gripper_closed=tuple(g_closed),
                    home=(0.0, -1.57, 1.57, -1.57, -1.57, 0.0), link_bodies=tuple(bodies))
@@ -177,3 +190,62 @@ def add_mobile_base(spec: mujoco.MjSpec, rgba=(0.2, 0.35, 0.7, 1.0)) -> BaseSpec
         act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         acts.append(act.name)
     return BaseSpec(joints=("base_x", "base_y"), actuators=tuple(acts), link_bodies=("base",))
+
+
+def fit_tcp_to_pads(model: mujoco.MjModel) -> float:
+    """Move the tcp site to the middle of an MJCF gripper's pads; return their closing axis.
+
+    Pads are the collision geoms of bodies named like left_pad / right_pad (Robotiq). Without
+    them the tcp stays on the ee axis and the fingers are assumed to close along ee y.
+    """
+    data = mujoco.MjData(model)
+    mujoco.mj_kinematics(model, data)
+    ee = model.body("ee").id
+    sides = {}
+    for side in ("left", "right"):
+        geoms = [g for g in range(model.ngeom) if model.geom_contype[g] and side in model.body(model.geom_bodyid[g]).name
+                 and "pad" in model.body(model.geom_bodyid[g]).name]
+        if not geoms:
+            return math.pi / 2
+        world = data.geom_xpos[geoms].mean(axis=0)
+        sides[side] = data.xmat[ee].reshape(3, 3).T @ (world - data.xpos[ee])
+    mid = (sides["left"] + sides["right"]) / 2
+    model.site_pos[model.site("tcp").id] = [0.0, 0.0, mid[2]]
+    axis = sides["left"] - sides["right"]
+    return math.atan2(axis[1], axis[0])
+
+
+def initial_state(model: mujoco.MjModel, arm: ArmSpec | None, target: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(qpos, ctrl) to start from: the arm solved to a pose above `target`, gripper open."""
+    qpos, ctrl = model.qpos0.copy(), np.zeros(model.nu)
+    if arm is None:
+        return qpos, ctrl
+    qadr = np.array([model.jnt_qposadr[model.joint(j).id] for j in arm.joints])
+    dofs = np.array([model.jnt_dofadr[model.joint(j).id] for j in arm.joints])
+    qpos[qadr] = arm.home
+    # Home: the tcp 0.25 m above and 0.15 m short of the target, pointing straight down.
+    home = np.array([target[0] - 0.15, target[1] * 0.5, max(target[2], 0.1) + 0.25])
+    # Two seeds, facing +x and -x (Menagerie arms face -x at zero pan): keep the exact solution
+    # that moves the joints least from its seed, so the arm starts elbow-up and unwound.
+    best, best_cost = None, np.inf
+    for turn in (0.0, np.pi):
+        seed_q = np.array(arm.home) + np.array([turn, 0, 0, 0, 0, 0])
+        qpos[qadr] = seed_q
+        q = solve_ik(model, qpos, model.site("tcp").id, qadr, dofs, home, yaw_quat(0.0))
+        data = mujoco.MjData(model)
+        data.qpos[:] = qpos
+        data.qpos[qadr] = q
+        mujoco.mj_kinematics(model, data)
+        residual = float(np.linalg.norm(data.site_xpos[model.site("tcp").id] - home))
+        cost = (residual > 1e-3) * 1e3 + float(np.abs(q - seed_q).sum())
+        if cost < best_cost:
+            best, best_cost = q, cost
+    qpos[qadr] = best
+    for name, q in zip(arm.actuators, qpos[qadr]):
+        ctrl[model.actuator(name).id] = q
+    for name, value in zip(arm.gripper_actuators, arm.gripper_open):
+        ctrl[model.actuator(name).id] = value
+        joint = model.actuator(name).trnid[0]
+        if model.actuator_trntype[model.actuator(name).id] == mujoco.mjtTrn.mjTRN_JOINT:
+            qpos[model.jnt_qposadr[joint]] = value
+    return qpos, ctrl

@@ -12,6 +12,7 @@ the draws of another.
 
 from __future__ import annotations
 
+import math
 import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +23,7 @@ import mujoco
 from schemas.manifest import Camera, ScenarioManifest
 from schemas.manifest import Frozen
 from tasks.sim import robots, stressors
-from tasks.sim.kinematics import solve_ik, yaw_quat
+from tasks.sim.kinematics import yaw_quat
 
 G = mujoco.mjtGeom
 BIN_CENTRE = np.array([0.45, 0.0])
@@ -60,6 +61,7 @@ class Scene:
     initial_qpos: np.ndarray
     initial_ctrl: np.ndarray
     stressor_values: dict = field(default_factory=dict)
+    grip_axis: float = math.pi / 2  # direction the fingers close along, as an angle in the ee x-y plane
 
 
 def rng_for(seed: int, purpose: str) -> np.random.Generator:
@@ -147,13 +149,18 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
     spec.visual.global_.offwidth = max(c.resolution[0] for c in manifest.cameras)
     spec.visual.global_.offheight = max(c.resolution[1] for c in manifest.cameras)
+    # Clip planes are fractions of the model extent (~7-12 m here); the default near plane
+    # (7+ cm) would hide a package held just below the wrist camera.
+    spec.visual.map.znear, spec.visual.map.zfar = 0.0005, 8.0
+    spec.visual.quality.offsamples = 0  # multisample resolve costs more than the render on llvmpipe
     look = manifest.stressor("appearance")
     arng = rng_for(seed, "appearance") if look else None
     layout = rng_for(seed, "layout")
     values = {s.kind: s.model_dump(exclude={"kind"}) for s in manifest.stressors}
 
     floor = stressors.add_material(spec, "floor_mat", (0.42, 0.42, 0.4), arng, look, (12, 12), checker=True)
-    spec.worldbody.add_geom(name="floor", type=G.mjGEOM_PLANE, size=[12, 12, 0.1], material=floor)
+    # A plane's third size is its render grid spacing: 0.1 m meant 57,600 quads and 3x slower frames.
+    spec.worldbody.add_geom(name="floor", type=G.mjGEOM_PLANE, size=[12, 12, 1.5], material=floor)
     spec.worldbody.add_light(name="sun", type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL, pos=[0.5, 0.5, 4],
                              dir=[-0.3, -0.2, -1], diffuse=[0.6] * 3, ambient=[0.25] * 3, specular=[0.1] * 3,
                              castshadow=False)
@@ -198,7 +205,9 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
         extra_xy = [np.array([0.3, -0.25]), np.array([0.6, -0.25]), np.array([0.3, 0.28])]
         extra_z = TABLE_TOP + PACKAGE_HALF[2]
         region, dz = (0.27, 0.63, -0.32, 0.32), TABLE_TOP
-        keep_out += [(*start, 0.08), (*goal[:2], 0.08), ((start[0] + goal[0]) / 2, 0.0, 0.08)]
+        # Clear of the package, the goal, the path between them and where the pusher lands behind it.
+        keep_out += [(*start, 0.08), (*goal[:2], 0.08), ((start[0] + goal[0]) / 2, 0.0, 0.08),
+                     (start[0], start[1] - 0.13, 0.07)]
     else:
         lane = manifest.stressor("forklift_crossing")
         gap = (lane.lane_m - 1.6, lane.lane_m + 1.6) if lane else (99.0, 99.0)
@@ -233,10 +242,14 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
     dim = manifest.stressor("dim_light")
     _scale_lights(spec, (dim.lux if dim else NORMAL_LUX) / NORMAL_LUX)
     model = spec.compile()
-    qpos, ctrl = _initial_state(model, arm, target_pos)
+    grip_axis = robots.fit_tcp_to_pads(model) if arm is not None and manifest.embodiment.mjcf else math.pi / 2
+    qpos, ctrl = robots.initial_state(model, arm, target_pos)
+    if fork:
+        qpos[model.joint("forklift_slide").qposadr[0]] = stressors.FORKLIFT_PARK_Y
     return Scene(model=model, manifest=manifest, seed=seed, config=config, arm=arm, base=base,
                  objects=tuple(objects), target_half=PACKAGE_HALF.copy(), goal=goal, rim_z=rim_z,
-                 lane_x=fork.lane_m if fork else None, initial_qpos=qpos, initial_ctrl=ctrl, stressor_values=values)
+                 lane_x=fork.lane_m if fork else None, initial_qpos=qpos, initial_ctrl=ctrl, stressor_values=values,
+                 grip_axis=grip_axis)
 
 
 def _safe(name: str, index: int) -> str:
@@ -254,23 +267,3 @@ def _scale_lights(spec: mujoco.MjSpec, scale: float) -> None:
     head = spec.visual.headlight
     head.ambient = list(np.asarray(head.ambient) * scale)
     head.diffuse = list(np.asarray(head.diffuse) * scale)
-
-
-def _initial_state(model: mujoco.MjModel, arm: robots.ArmSpec | None, target: np.ndarray):
-    qpos, ctrl = model.qpos0.copy(), np.zeros(model.nu)
-    if arm is None:
-        return qpos, ctrl
-    qadr = np.array([model.jnt_qposadr[model.joint(j).id] for j in arm.joints])
-    dofs = np.array([model.jnt_dofadr[model.joint(j).id] for j in arm.joints])
-    qpos[qadr] = arm.home
-    # Home: the tcp 0.25 m above and 0.15 m short of the target, pointing straight down.
-    home = np.array([target[0] - 0.15, target[1] * 0.5, max(target[2], 0.1) + 0.25])
-    qpos[qadr] = solve_ik(model, qpos, model.site("tcp").id, qadr, dofs, home, yaw_quat(0.0))
-    for name, q in zip(arm.actuators, qpos[qadr]):
-        ctrl[model.actuator(name).id] = q
-    for name, value in zip(arm.gripper_actuators, arm.gripper_open):
-        ctrl[model.actuator(name).id] = value
-        joint = model.actuator(name).trnid[0]
-        if model.actuator_trntype[model.actuator(name).id] == mujoco.mjtTrn.mjTRN_JOINT:
-            qpos[model.jnt_qposadr[joint]] = value
-    return qpos, ctrl

@@ -18,16 +18,21 @@ FORKLIFT_LENGTH = 2.4
 
 
 def add_forklift(spec: mujoco.MjSpec, stressor: ForkliftCrossing, lane_x: float) -> None:
-    """A mocap forklift (chassis, cab, mast, forks) parked at y=-4.5 on the lane x=lane_x.
+    """A forklift (chassis, cab, mast, forks) on a slide joint along the lane x=lane_x.
 
-    It travels along +y (forks first) from start_s at speed_mps; `forklift_position` gives
-    its pose over time. Mocap makes the motion exact and independent of contact forces.
+    It travels along +y (forks first) from start_s at speed_mps; the simulation overwrites
+    its joint position and velocity every physics step (`forklift_position`), so the motion
+    is exact. A 3 t joint body rather than a mocap body, because MuJoCo never collides mocap
+    bodies with static geoms, and driving into the bin or pedestal must count as contact.
     """
-    body = spec.worldbody.add_body(name="forklift", mocap=True, pos=[lane_x, FORKLIFT_PARK_Y, 0.0],
-                                   quat=[0.7071068, 0, 0, 0.7071068])
+    body = spec.worldbody.add_body(name="forklift", pos=[lane_x, 0.0, 0.0], quat=[0.7071068, 0, 0, 0.7071068])
+    body.add_joint(name="forklift_slide", type=mujoco.mjtJoint.mjJNT_SLIDE, axis=[1, 0, 0])
+    body.explicitinertial = True
+    body.mass, body.ipos, body.inertia = 3000.0, [0, 0, 0.5], [1500.0, 3000.0, 3000.0]
     y, dark = FORKLIFT_YELLOW, (0.12, 0.12, 0.12, 1.0)
-    solid = dict(contype=1, conaffinity=1)
-    body.add_geom(name="forklift_chassis", type=G.mjGEOM_BOX, pos=[-0.1, 0, 0.45], size=[0.75, 0.45, 0.3], rgba=y, **solid)
+    solid = dict(contype=1, conaffinity=1, mass=0)
+    body.add_geom(name="forklift_chassis", type=G.mjGEOM_BOX, pos=[-0.1, 0, 0.45], size=[0.75, 0.45, 0.3], rgba=y,
+                  **solid)
     body.add_geom(name="forklift_counterweight", type=G.mjGEOM_BOX, pos=[-0.8, 0, 0.6], size=[0.12, 0.42, 0.3], rgba=dark, **solid)
     for px in (-0.6, 0.45):
         for py in (-0.4, 0.4):
@@ -39,13 +44,13 @@ def add_forklift(spec: mujoco.MjSpec, stressor: ForkliftCrossing, lane_x: float)
     for px in (-0.55, 0.45):
         for py in (-0.42, 0.42):
             body.add_geom(type=G.mjGEOM_CYLINDER, pos=[px, py, 0.2], quat=[0.7071068, 0.7071068, 0, 0],
-                          size=[0.2, 0.09, 0], rgba=dark, contype=0, conaffinity=0)
+                          size=[0.2, 0.09, 0], rgba=dark, contype=0, conaffinity=0, mass=0)
 
 
-def forklift_position(stressor: ForkliftCrossing, lane_x: float, t: float) -> np.ndarray:
-    """World (x, y, z) of the forklift origin at time t (s): parked until start_s, then moving."""
+def forklift_position(stressor: ForkliftCrossing, t: float) -> tuple[float, float]:
+    """(world y of the forklift origin in m, its speed in m/s) at time t: parked until start_s."""
     travelled = max(0.0, t - stressor.start_s) * stressor.speed_mps
-    return np.array([lane_x, FORKLIFT_PARK_Y + travelled, 0.0])
+    return FORKLIFT_PARK_Y + travelled, stressor.speed_mps if t >= stressor.start_s else 0.0
 
 
 def _look_axes(forward: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -87,8 +92,10 @@ def add_occluder(spec: mujoco.MjSpec, stressor: Occluder, camera_pos: np.ndarray
     centre = camera_pos + forward * dist * scale + scale * (r_mid * right + u_mid * up)
     quat = np.zeros(4)
     mujoco.mju_mat2Quat(quat, np.column_stack([right, up, -forward]).ravel())
+    # Matte: the board faces the camera head-on, where the headlight's specular glare peaks.
+    spec.add_material(name="occluder_mat", rgba=[0.32, 0.3, 0.28, 1.0], specular=0.0, shininess=0.0)
     spec.worldbody.add_geom(name="occluder", type=G.mjGEOM_BOX, pos=list(centre), quat=list(quat),
-                            size=[scale * width / 2, scale * height / 2, 0.004], rgba=(0.32, 0.3, 0.28, 1.0),
+                            size=[scale * width / 2, scale * height / 2, 0.004], material="occluder_mat",
                             contype=0, conaffinity=0)
 
 

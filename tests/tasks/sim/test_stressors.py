@@ -103,3 +103,44 @@ def test_menagerie_ur5e_with_robotiq_gripper(base, shared_data):
     assert any("wrist_3" in n for n in names) and any("pad" in n or "driver" in n for n in names)
     ep = rollout(ur5e, 0, config)
     assert ep.frames["front_left"].shape[0] == 15 and ep.joint_pos.shape[1] >= 6
+
+
+def _package_pixels(manifest, seed=1):
+    import mujoco
+
+    from tasks.sim.render import MultiCameraRenderer
+
+    scene = build_scene(manifest, seed)
+    data = mujoco.MjData(scene.model)
+    data.qpos[:] = scene.initial_qpos
+    mujoco.mj_forward(scene.model, data)
+    cam = manifest.cameras[0]
+    geom = scene.model.geom(f"{scene.objects[0]}_geom").id
+    with MultiCameraRenderer(scene.model, {cam.name: (256, 256)}) as renderer:
+        return int((renderer.segment(data, cam.name) == geom).sum())
+
+
+@pytest.mark.parametrize("coverage", [0.3, 0.7])
+def test_occluder_hides_about_its_coverage_of_the_package(base, coverage):
+    big = base.model_copy(update={"cameras": (base.cameras[0].model_copy(update={"resolution": (256, 256)}),)})
+    seen = _package_pixels(big)
+    hidden = _package_pixels(_with(big, Occluder(coverage=coverage)))
+    assert seen > 200  # the target is in view to begin with
+    # Coverage is of the package's projected width, so the pixel share matches only roughly.
+    assert 1 - hidden / seen == pytest.approx(coverage, abs=0.1)
+
+
+def test_camera_jitter_moves_pictures_not_physics(base):
+    from schemas.manifest import CameraJitter
+
+    short = base.model_copy(update={"horizon_s": 1.0})
+    still = rollout(short, 3)
+    shaky = rollout(_with(short, CameraJitter(amplitude_deg=2.0, frequency_hz=5.0)), 3)
+    assert np.array_equal(still.action, shaky.action) and np.array_equal(still.joint_pos, shaky.joint_pos)
+    assert not np.array_equal(still.frames["front_left"], shaky.frames["front_left"])
+
+
+def test_brighter_light_brightens_monotonically(base):
+    short = base.model_copy(update={"horizon_s": 0.2})
+    means = [rollout(_with(short, DimLight(lux=lux)), 1).frames["front_left"].mean() for lux in (25, 100, 500)]
+    assert means[0] < means[1] < means[2]
