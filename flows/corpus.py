@@ -7,6 +7,7 @@ import time
 from prefect import flow, task
 
 from flows.recording import recorded_run
+from flows.report import markdown_table, publish
 from schemas.hashing import stable_id
 from schemas.records import LineageBatch, StageRunRecord
 from schemas.settings import Settings
@@ -29,4 +30,7 @@ def corpus(minutes: float = 1.0, seed: int = 0, width: int = 640, height: int = 
                                attrs=params)
         run.write(LineageBatch(stage_runs=[stage]).extend(generate.corpus_lineage(videos, stage.stage_run_id, None, settings.data_root)))
         print(f"corpus seed {seed}: {len(videos)} videos, {minutes} min at {width}x{height}")
+        publish("corpus", f"seed {seed}, {len(videos)} videos, {minutes} min at {width}x{height}",
+                markdown_table(("video", "ground truth"), [(v.video.name, v.truth.name) for v in videos]),
+                "generated raw footage with ground truth")
         return {"videos": [str(v.video) for v in videos], "seed": seed}

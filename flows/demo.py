@@ -9,6 +9,7 @@ from prefect import flow
 from flows.corpus import corpus
 from flows.curate import curate
 from flows.register import register
+from flows.report import markdown_table, publish
 from flows.simulate import simulate
 from schemas import paths
 from schemas.settings import Settings
@@ -32,4 +33,8 @@ def demo() -> list[dict]:
         results.append(curate([str(folder)], manifest))
     footage = corpus(minutes=1.0, seed=1, width=640, height=360)
     results.append(curate(footage["videos"]))
+    publish("demo", f"{len(results)} curate runs", markdown_table(
+        ("curate run", "manifest", "status", "inputs", "clips kept", "shards"),
+        [(r["run_id"], (r["manifest_hash"] or "")[:12], r["status"], r["inputs"], r["clips"], len(r["shards"]))
+         for r in results]), "the demo's curate runs")
     return results

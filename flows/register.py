@@ -7,6 +7,7 @@ from pathlib import Path
 from prefect import flow, task
 
 from flows.recording import recorded_run
+from flows.report import markdown_table, publish
 from schemas.manifest import manifest_hash
 from schemas.settings import Settings
 from tasks import manifests
@@ -22,4 +23,7 @@ def register(manifest_path: str) -> str:
                       params={"manifest": manifest_path}):
         digest = manifest_hash(manifest)
         print(f"registered {manifest.name} {digest[:12]} from {manifest_path}")
+        publish("register", manifest.name, markdown_table(("manifest", "hash", "source", "stressors"), [
+            (manifest.name, digest, manifest_path, ", ".join(sorted(s.kind for s in manifest.stressors)))]),
+            "the manifest recorded in lineage")
     return digest

@@ -8,6 +8,8 @@ from pathlib import Path
 from prefect import flow, task
 
 from flows.recording import recorded_run
+from flows.report import markdown_table, progress, publish
+from flows.runners import task_runner
 from schemas.hashing import stable_id
 from schemas.records import LineageBatch, StageRunRecord
 from schemas.settings import Settings
@@ -24,7 +26,7 @@ def simulate_episode(manifest, manifest_hash: str, index: int, root: Path):
     return files.write_episode(result, root, manifest_hash, index), result.success, result.reason
 
 
-@flow(name="simulate", log_prints=True)
+@flow(name="simulate", log_prints=True, task_runner=task_runner())
 def simulate(manifest: str, episodes: int = 2) -> dict:
     """Episodes 0..N-1 of a manifest use seeds seed..seed+N-1; finished episodes are skipped."""
     settings = Settings()
@@ -36,16 +38,22 @@ def simulate(manifest: str, episodes: int = 2) -> dict:
         futures = {key: (time.perf_counter(), simulate_episode.submit(scenario, run.manifest_hash, i, settings.data_root))
                    for key, i in keys.items() if key in todo}
         outcomes = {}
-        for key, (t0, future) in futures.items():
-            written, success, reason = future.result()
-            stage = StageRunRecord(stage_run_id=run.stage_run_id("simulate", key), run_id=run.run_id,
-                                   stage="simulate", input_key=key, manifest_hash=run.manifest_hash,
-                                   n_in=1, n_out=1, seconds=round(time.perf_counter() - t0, 3),
-                                   attrs={"index": keys[key], "success": success, "reason": reason})
-            run.write(LineageBatch(stage_runs=[stage]).extend(
-                files.episode_lineage(written, run.manifest_hash, stage.stage_run_id, settings.data_root)))
-            outcomes[keys[key]] = (success, reason)
+        with progress(len(futures), f"simulate {scenario.name}") as bar:
+            for key, (t0, future) in futures.items():
+                written, success, reason = future.result()
+                bar.advance()
+                stage = StageRunRecord(stage_run_id=run.stage_run_id("simulate", key), run_id=run.run_id,
+                                       stage="simulate", input_key=key, manifest_hash=run.manifest_hash,
+                                       n_in=1, n_out=1, seconds=round(time.perf_counter() - t0, 3),
+                                       attrs={"index": keys[key], "success": success, "reason": reason})
+                run.write(LineageBatch(stage_runs=[stage]).extend(
+                    files.episode_lineage(written, run.manifest_hash, stage.stage_run_id, settings.data_root)))
+                outcomes[keys[key]] = (success, reason)
         done = sorted(outcomes.items())
+        publish("simulate", f"{scenario.name}: {len(done)} new episodes, {episodes - len(done)} already done",
+                markdown_table(("episode", "seed", "outcome", "reason"),
+                               [(i, scenario.seed + i, "success" if ok else "failure", why) for i, (ok, why) in done]),
+                "episodes rolled out and their outcome")
         print(f"{scenario.name}: {len(done)} new episodes, {episodes - len(done)} already done; "
               + ", ".join(f"#{i} {'success' if ok else 'failure'} ({why})" for i, (ok, why) in done))
         return {"manifest_hash": run.manifest_hash, "new": len(done),

@@ -166,6 +166,32 @@ def test_deployment_run_from_the_command_line_lands_in_lineage(stack):
 
 
 @pytest.mark.slow
+def test_curate_deployment_run_twice_reuses_finished_work(stack, tmp_path):
+    from tasks.mp4 import write_mp4
+    from tasks.sim.episode import rollout
+
+    inbox = tmp_path / "inbox"
+    scenario = load(MANIFESTS / "conveyor_push.yaml").model_copy(update={"horizon_s": 3.0})
+    write_mp4(inbox / "episode.mp4", rollout(scenario, 3).frames["overhead"], 30)
+    curate = next(d for d in LIVE if flow_name(d) == "curate")
+    name = f"curate/{curate['name']}"
+    counts = "SELECT (SELECT count(*) FROM artifacts), (SELECT count(*) FROM stage_runs WHERE stage = 'analyse'), " \
+             "(SELECT count(*) FROM edges), (SELECT count(*) FROM rejections)"
+    seen = []
+    for _ in range(2):
+        done = prefect_cli(stack, "deployment", "run", name, "--param", f'inputs=["{inbox}"]')
+        run = wait_final(stack, re.search(r"UUID: ([0-9a-f-]{36})", done.stdout).group(1))
+        assert run.state.type.value == "COMPLETED", f"{run.state}\n{stack.worker.tail()}"
+        with Warehouse(stack.settings.warehouse_path, read_only=True) as wh:
+            _, rows = wh.query(counts)
+            _, runs = wh.query("SELECT status, params->>'inputs' FROM runs WHERE flow = 'curate' ORDER BY started_at")
+        seen.append(rows[0])
+    assert seen[0][1] == 1 and seen[0][0] > 2  # one video analysed: raw video, clips, shard, manifest
+    assert seen[1] == seen[0]  # the second run analysed nothing and added no artifact, edge or rejection
+    assert [r[0] for r in runs] == ["completed", "completed"] and str(inbox) in runs[0][1]
+
+
+@pytest.mark.slow
 def test_nightly_schedule_creates_scheduled_runs(stack):
     from prefect.client.schemas.filters import (DeploymentFilter, DeploymentFilterId, FlowRunFilter,
                                                 FlowRunFilterState, FlowRunFilterStateType)

@@ -1,0 +1,56 @@
+"""What users see of a flow run: a markdown summary artifact and live progress.
+
+Progress is a Prefect progress artifact (the UI shows it on the flow run) and, when the flow
+runs from a terminal, a rich progress bar on stderr.
+"""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Iterable, Sequence
+from contextlib import contextmanager
+from typing import Iterator
+
+from prefect.artifacts import create_markdown_artifact, create_progress_artifact, update_progress_artifact
+
+
+def markdown_table(header: Sequence[str], rows: Iterable[Sequence[object]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join("" if v is None else str(v).replace("|", "\\|") for v in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def publish(flow: str, title: str, body: str, description: str) -> str:
+    """One markdown artifact per flow run, keyed `<flow>-summary` so the UI keeps its history."""
+    text = f"## {flow}: {title}\n\n{body}"
+    create_markdown_artifact(markdown=text, key=f"{flow}-summary", description=description)
+    return text
+
+
+class Progress:
+    def __init__(self, total: int, description: str, bar=None, task_id=None):
+        self.total, self.done, self.description = max(total, 0), 0, description
+        self._bar, self._task = bar, task_id
+        self._artifact = create_progress_artifact(0.0, description=description) if total else None
+
+    def advance(self, n: int = 1) -> None:
+        self.done = min(self.total, self.done + n)
+        if self._artifact is not None:
+            update_progress_artifact(self._artifact, 100.0 * self.done / self.total,
+                                     description=f"{self.description}: {self.done} of {self.total}")
+        if self._bar is not None:
+            self._bar.update(self._task, completed=self.done)
+
+
+@contextmanager
+def progress(total: int, description: str) -> Iterator[Progress]:
+    """Progress over `total` units; a terminal bar only when stderr is a TTY (not in logs or CI)."""
+    if not sys.stderr.isatty() or not total:
+        yield Progress(total, description)
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress as Bar, TextColumn, TimeRemainingColumn
+
+    with Bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+             console=Console(stderr=True), transient=True) as bar:
+        yield Progress(total, description, bar, bar.add_task(description, total=total))

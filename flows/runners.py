@@ -1,0 +1,55 @@
+"""The task runner a flow fans out on: threads in the flow process (default) or a Ray cluster.
+
+`WORLDLINE_TASK_RUNNER=ray` runs tasks through prefect-ray (the `ray` extra) on the cluster at
+`WORLDLINE_RAY_ADDRESS`, or on a local cluster started for the flow run when none is given.
+Either way tasks only return records: the flow process stays the one lineage writer.
+"""
+
+from __future__ import annotations
+
+import os
+
+from prefect.task_runners import TaskRunner, ThreadPoolTaskRunner
+
+from schemas.settings import Settings
+
+# Ray workers are fresh processes: they see Worldline's settings and the flow's Prefect API
+# only through the environment the runner hands them.
+_FORWARDED_PREFIXES = ("WORLDLINE_", "PREFECT_", "MUJOCO_GL")
+
+
+def task_runner(settings: Settings | None = None) -> TaskRunner:
+    settings = settings or Settings()
+    if settings.task_runner == "local":
+        return ThreadPoolTaskRunner(max_workers=settings.workers)
+    try:
+        from prefect_ray import RayTaskRunner
+    except ImportError as exc:
+        raise RuntimeError("WORLDLINE_TASK_RUNNER=ray needs the ray extra: pip install -e '.[ray]'") from exc
+
+    class WorkerEnvRayTaskRunner(RayTaskRunner):
+        """RayTaskRunner whose workers report to this flow's Prefect API.
+
+        Without PREFECT_API_URL each Ray worker would start an ephemeral Prefect server of its
+        own (about 20 s per worker here) and the task runs would not show in the flow's API.
+        """
+
+        def __enter__(self):
+            from prefect.context import SyncClientContext
+
+            env = {k: v for k, v in os.environ.items() if k.startswith(_FORWARDED_PREFIXES)}
+            ctx = SyncClientContext.get()
+            if ctx is not None:
+                env["PREFECT_API_URL"] = str(ctx.client.api_url).rstrip("/")
+            runtime_env = dict(self.init_kwargs.get("runtime_env") or {})
+            runtime_env["env_vars"] = {**env, **runtime_env.get("env_vars", {})}
+            self.init_kwargs["runtime_env"] = runtime_env
+            return super().__enter__()
+
+        def duplicate(self):
+            return type(self)(address=self.address, init_kwargs=self.init_kwargs)
+
+    init_kwargs: dict = {"include_dashboard": False} if not settings.ray_address else {}
+    if not settings.ray_address:
+        init_kwargs["num_cpus"] = settings.workers
+    return WorkerEnvRayTaskRunner(address=settings.ray_address, init_kwargs=init_kwargs)
