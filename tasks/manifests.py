@@ -10,6 +10,7 @@ from pydantic import ValidationError
 from schemas.hashing import canonical_json
 from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, ManifestRow
+from tasks.guard.text import GuardError, check_fields
 
 MAX_BYTES = 256 * 1024
 MAX_NODES = 5_000
@@ -70,13 +71,18 @@ def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:
     if not isinstance(data, dict):
         raise ManifestError(f"{where}: the top level must be a mapping, not {type(data).__name__}")
     try:
-        return ScenarioManifest.model_validate(data)
+        manifest = ScenarioManifest.model_validate(data)
     except ValidationError as exc:
         problems = []
         for err in exc.errors():
             field = ".".join(str(p) for p in err["loc"]) or "(top level)"
             problems.append(f"{field}: {err['msg']}")
         raise ManifestError(f"{where}: {'; '.join(problems)}") from None
+    try:
+        check_fields(manifest)  # the pre-guard: every text field, after validation (issue 10)
+    except GuardError as exc:
+        raise ManifestError(f"{where}: {exc}") from None
+    return manifest
 
 
 def load(path: Path | str) -> ScenarioManifest:

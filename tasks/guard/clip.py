@@ -1,0 +1,75 @@
+"""guard_clip: re-encode an MP4 with every face hidden (the post-guard over a file)."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from schemas.hashing import sha256_file
+from tasks.curate.decode import open_video, probe
+from tasks.curate.encode import EncodeConfig, output_size
+from tasks.guard.config import GuardConfig
+from tasks.guard.faces import FaceDecision, guard_stream
+from tasks.mp4 import write_mp4
+
+
+@dataclass(frozen=True, slots=True)
+class GuardedClip:
+    """The written clip and every face decision taken on it (frame indices are decoded order)."""
+
+    path: Path
+    sha256: str
+    bytes: int
+    frames: int
+    width: int
+    height: int
+    decisions: tuple[FaceDecision, ...]
+
+
+def _display_frames(path: Path) -> Iterator[np.ndarray]:
+    """H x W x 3 uint8 RGB frames in display orientation with square pixels and even sides."""
+    info = probe(path)
+    width, height = output_size(info)
+    turns = info.rotation // 90
+    if turns % 2:
+        width, height = height, width  # decoded size before the rotation
+    container = open_video(path)
+    try:
+        for frame in container.decode(video=0):
+            image = frame.reformat(width, height, "rgb24", interpolation="AREA").to_ndarray()
+            yield np.ascontiguousarray(np.rot90(image, k=turns)) if turns else image
+    finally:
+        container.close()
+
+
+def guard_clip(path_in: Path | str, path_out: Path | str, config: GuardConfig = GuardConfig(),
+               encode: EncodeConfig = EncodeConfig()) -> GuardedClip:
+    """Write ``path_in`` to ``path_out`` as H.264 (``encode``'s preset and crf, x264 as in
+    ``tasks/mp4.py``: same input, same bytes) with every face hidden. With the guard off the
+    file is copied unchanged. The output has the input's average frame rate (a variable-rate
+    input comes out constant-rate) and no audio."""
+    path_in, path_out = Path(path_in), Path(path_out)
+    if not config.enabled:
+        path_out.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(path_in, path_out)
+        info = probe(path_out)
+        return GuardedClip(path_out, sha256_file(str(path_out)), path_out.stat().st_size, info.n_frames,
+                           info.display_width, info.display_height, ())
+    info = probe(path_in)
+    decisions: list[FaceDecision] = []
+    shape: list[tuple[int, ...]] = []
+
+    def frames() -> Iterator[np.ndarray]:
+        for image, made in guard_stream(_display_frames(path_in), config):
+            decisions.extend(made)
+            shape.append(image.shape)
+            yield image
+
+    write_mp4(path_out, frames(), fps=info.fps, crf=encode.crf, preset=encode.preset)
+    height, width = shape[0][:2]
+    return GuardedClip(path_out, sha256_file(str(path_out)), path_out.stat().st_size, len(shape), width, height,
+                       tuple(decisions))

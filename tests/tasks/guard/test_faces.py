@@ -1,0 +1,130 @@
+"""Post-guard on real faces: after it, no face is found again and nothing outside the boxes moved."""
+
+import av
+import numpy as np
+import pytest
+
+from tasks.guard import faces
+from tasks.guard.config import GuardConfig
+from tasks.guard.faces import FaceDecision, FaceGuardError, detect_faces, guard_frames, hide, pad_box
+
+
+def _outside_unchanged(before: np.ndarray, after: np.ndarray, decisions: list[FaceDecision]) -> bool:
+    inside = np.zeros(before.shape[:3], bool)
+    for d in decisions:
+        x, y, w, h = d.box
+        inside[d.frame, y:y + h, x:x + w] = True
+    return np.array_equal(before[~inside], after[~inside])
+
+
+@pytest.fixture(scope="module", autouse=True)
+def one_opencv_thread():
+    # The machine is shared: keep the detector on one core, as the speed figures were measured.
+    before = faces.cv2.getNumThreads()
+    faces.cv2.setNumThreads(1)
+    yield
+    faces.cv2.setNumThreads(before)
+
+
+@pytest.fixture(scope="module")
+def astronaut() -> np.ndarray:
+    """The upper middle 256 x 256 of a real photo (Eileen Collins, NASA, public domain) bundled in
+    scikit-image's wheel (skimage/data/astronaut.png, read from the package, never the network),
+    cropped to a quarter of its pixels to keep the test fast; the face is about 92 px wide."""
+    skimage_data = pytest.importorskip("skimage.data", reason="scikit-image (dev extra) not installed")
+    return np.ascontiguousarray(skimage_data.astronaut()[None, :256, 96:352])
+
+
+@pytest.fixture(scope="module")
+def carphone(shared_data) -> np.ndarray:
+    """Every 8th frame of carphone_pristine.mp4 (176 x 144): a face in a car."""
+    with av.open(str(shared_data / "videos" / "carphone_pristine.mp4")) as container:
+        frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    return np.stack(frames[::8])
+
+
+@pytest.mark.parametrize("method", ["blur", "pixelate"])
+def test_astronaut_face_is_hidden(astronaut, method):
+    config = GuardConfig(method=method)
+    found = detect_faces(astronaut[0], config)
+    assert len(found) == 1 and found[0][2] >= 80  # the face, about 92 px wide
+    out, decisions = guard_frames(astronaut, config)
+    assert [d.frame for d in decisions] == [0] and decisions[0].box == pad_box(found[0], astronaut.shape[1:], config.pad)
+    assert detect_faces(out[0], config) == []
+    assert _outside_unchanged(astronaut, out, decisions)
+    assert not np.array_equal(out, astronaut)
+
+
+def test_downscaled_detection_still_finds_faces_above_min_face(astronaut):
+    # min_face=60 detects on a third-size copy; the 92 px face is still found, at full-size coordinates.
+    (x, y, w, h), = detect_faces(astronaut[0], GuardConfig(min_face=60))
+    (x0, y0, w0, h0), = detect_faces(astronaut[0])
+    overlap = max(0, min(x + w, x0 + w0) - max(x, x0)) * max(0, min(y + h, y0 + h0) - max(y, y0))
+    assert overlap / (w * h + w0 * h0 - overlap) > 0.6
+    assert detect_faces(astronaut[0], GuardConfig(min_face=120)) == []  # smaller than min_face: not searched
+
+
+def test_carphone_faces_are_hidden(carphone):
+    config = GuardConfig()
+    out, decisions = guard_frames(carphone, config)
+    assert len({d.frame for d in decisions}) >= len(carphone) // 2  # found in most frames (69 of all 120)
+    assert [i for i, f in enumerate(out) if detect_faces(f, config)] == []
+    assert _outside_unchanged(carphone, out, decisions)
+
+
+def _fake_detector(monkeypatch, boxes_by_frame: dict[int, list]):
+    calls = []
+
+    def detect(frame, config):
+        index = int(frame[0, 0, 0])
+        calls.append(index)
+        return boxes_by_frame.get(index, [])
+
+    monkeypatch.setattr(faces, "detect_faces", detect)
+    return calls
+
+
+def test_detect_every_carries_the_union_of_neighbouring_detections(monkeypatch):
+    frames = np.zeros((8, 40, 60, 3), np.uint8)
+    frames[:, :, :, 1] = np.arange(60, dtype=np.uint8) * 4  # texture for the blur to change
+    frames[:, 0, 0, 0] = np.arange(8)  # frame i carries i, read by the fake detector
+    calls = _fake_detector(monkeypatch, {0: [(10, 10, 8, 8)], 3: [(30, 10, 8, 8)], 7: []})
+    out, decisions = guard_frames(frames, GuardConfig(detect_every=3, pad=0))
+    assert calls == [0, 3, 6, 7]  # every 3rd frame and the last
+    by_frame = {}
+    for d in decisions:
+        by_frame.setdefault(d.frame, set()).add((d.box, d.detected))
+    assert by_frame[0] == {((10, 10, 8, 8), True)}
+    assert by_frame[1] == by_frame[2] == {((10, 10, 8, 8), False), ((30, 10, 8, 8), False)}
+    assert by_frame[3] == {((30, 10, 8, 8), True)}
+    assert by_frame[4] == by_frame[5] == {((30, 10, 8, 8), False)}
+    assert 6 not in by_frame and 7 not in by_frame
+    assert np.array_equal(out[6:], frames[6:])
+    assert _outside_unchanged(frames, out, decisions)
+
+
+def test_guard_off_and_bad_input(monkeypatch):
+    frames = np.random.default_rng(0).integers(0, 255, (2, 32, 32, 3), dtype=np.uint8)
+    calls = _fake_detector(monkeypatch, {})
+    out, decisions = guard_frames(frames, GuardConfig(enabled=False))
+    assert np.array_equal(out, frames) and decisions == [] and calls == []
+    with pytest.raises(ValueError, match="T x H x W x 3 uint8"):
+        guard_frames(frames[0], GuardConfig())
+
+
+def test_hide_changes_only_the_box():
+    frame = np.random.default_rng(1).integers(0, 255, (50, 70, 3), dtype=np.uint8)
+    for method in ("blur", "pixelate"):
+        out = hide(frame, [(5, 6, 30, 20)], GuardConfig(method=method))
+        mask = np.zeros(frame.shape[:2], bool)
+        mask[6:26, 5:35] = True
+        assert np.array_equal(out[~mask], frame[~mask]) and not np.array_equal(out[mask], frame[mask])
+        assert out[mask].std() < frame[mask].std() / 2  # the detail is gone
+    assert pad_box((5, 5, 20, 20), (40, 40, 3), 0.5) == (0, 0, 35, 35)  # padded and clipped
+
+
+def test_missing_cascades_are_refused_not_skipped(monkeypatch, tmp_path):
+    monkeypatch.setattr(faces.cv2.data, "haarcascades", str(tmp_path), raising=False)
+    monkeypatch.setattr(faces._local, "cascades", None, raising=False)
+    with pytest.raises(FaceGuardError, match="opencv-python-headless"):
+        detect_faces(np.zeros((40, 40, 3), np.uint8))
