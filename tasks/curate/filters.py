@@ -106,6 +106,26 @@ def active_box(frames: np.ndarray, dark: int = 24) -> tuple[int, int, int, int]:
     return top, bottom, left, right
 
 
+def palette_size(frame: np.ndarray, cover: float = 0.95) -> float:
+    """How many 4-bit-per-channel colours cover ``cover`` of an h x w x 3 uint8 RGB frame.
+
+    The frame is first stretched so its 1-99 % range fills 0-255: a dark or washed-out shot
+    keeps its many shades, while drawn content (slides, cartoons, bars) stays at a handful.
+    Clipped pixels (black or white in every channel) are left out when at least a tenth of
+    the picture remains, so a blown-out shot is judged by what is left of it.
+    """
+    lum = frame.max(axis=2).astype(np.int16) + frame.min(axis=2)
+    unclipped = (lum > 12) & (lum < 498)
+    if unclipped.mean() >= 0.1:
+        frame = frame[unclipped][None]
+    lo, hi = np.percentile(frame, (1, 99))
+    stretched = np.clip((frame.astype(np.float32) - lo) * (255.0 / max(16.0, hi - lo)), 0, 255).astype(np.uint8)
+    q = (stretched >> 4).astype(np.int32)
+    counts = np.bincount(((q[..., 0] << 8) | (q[..., 1] << 4) | q[..., 2]).ravel(), minlength=4096)
+    total = np.cumsum(np.sort(counts)[::-1])
+    return float(np.searchsorted(total, cover * total[-1]) + 1)
+
+
 def run_filters(
     frames: np.ndarray, times: np.ndarray, configs: Sequence[FilterConfig] | None = None
 ) -> tuple[Verdict, list[Verdict]]:

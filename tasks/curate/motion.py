@@ -20,7 +20,8 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from tasks.curate.filters import FilterConfig, Verdict, check_frames, grey, sample_indices
+from tasks.curate.filters import FilterConfig, Verdict, check_frames, grey, palette_size, sample_indices
+from tasks.curate.video_type import looks_drawn
 
 
 class MotionConfig(FilterConfig):
@@ -33,9 +34,14 @@ class MotionConfig(FilterConfig):
     n_gaps: int = 8
     smooth_s: float = 0.25  # camera-path smoothing window: jitter faster than this is shake
     change_min: float = 6.0  # grey levels a pixel must change by to count as moving
-    static_max: float = 0.005  # moving_fraction at or below which a still camera is static
+    change_sigmas: float = 4.5  # ... or by this many noise sigmas of a frame difference
+    # Static means nothing changes at all: a slide deck's pointer or a ticking counter (0.2 %
+    # of the picture) already counts as content that moves, so the bound sits below that.
+    static_max: float = 0.001  # moving_fraction at or below which the clip is static
+    drawn_palette: float = 8.0  # filters.palette_size at or below: drawn, never "static"
     still_camera_max: float = 0.02  # motion_global (long sides / s) for the camera:still tag
-    shake_min: float = 0.6  # shake (percent of long side) above which the clip is rejected
+    shake_min: float = 0.5  # shake (percent of long side) above which the clip is rejected
+    shake_moving_min: float = 0.2  # ... when at least this fraction of the picture moves
     pan_min: float = 0.05  # motion_global for the camera:pan tag
     pan_consistency: float = 0.7  # |mean velocity| / mean |velocity| for a pan
     zoom_min: float = 0.05  # |zoom| (relative scale change per second) for a zoom tag
@@ -74,7 +80,8 @@ def camera_path(
     window = cv2.createHanningWindow((w, h), cv2.CV_32F)
     shifts, responses = [], []
     for a, b in zip(run[:-1], run[1:]):
-        (dx, dy), response = cv2.phaseCorrelate(small[int(a)], small[int(b)], window)
+        # The window is applied here: cv2.phaseCorrelate(a, b, window) windows its inputs in place.
+        (dx, dy), response = cv2.phaseCorrelate(small[int(a)] * window, small[int(b)] * window)
         shifts.append((dx, dy))
         responses.append(response)
     shifts, responses = np.asarray(shifts, np.float64).reshape(-1, 2), np.asarray(responses)
@@ -133,7 +140,7 @@ def judge(frames: np.ndarray, times: np.ndarray, config: MotionConfig) -> Verdic
     # A pixel "moves" when it changes by more than sensor noise could explain; the noise level
     # comes from the frame itself so a grainy locked-off shot still counts as static.
     sigma = noise_sigma(small(0))
-    threshold = max(config.change_min, 3.0 * np.sqrt(2.0) * sigma)
+    threshold = max(config.change_min, config.change_sigmas * np.sqrt(2.0) * sigma)
     diffs, moving = [], []
     for i in starts:
         j = min(n - 1, int(np.searchsorted(times, times[i] + gap)))
@@ -193,9 +200,14 @@ def judge(frames: np.ndarray, times: np.ndarray, config: MotionConfig) -> Verdic
     if motion_global < config.still_camera_max and not tags:
         tags.append("camera:still")
     reason = None
-    if shake >= config.shake_min:
+    # A shaking camera moves the whole picture; on a flat backdrop the correlation peak can
+    # follow a few bouncing objects instead, which is not camera shake.
+    if shake >= config.shake_min and moving_fraction >= config.shake_moving_min:
         reason = "shake"
         tags.append("camera:shake")
-    elif moving_fraction <= config.static_max:
+    elif (moving_fraction <= config.static_max and palette_size(frames[n // 2]) > config.drawn_palette
+          and not looks_drawn(frames, times)):
+        # A still drawn page (a slide held on screen) is the video-type filter's call, not a
+        # locked-off camera; footage has far more than a handful of colours.
         reason = "static"
     return Verdict(keep=reason is None, reason=reason, scores=scores, tags=tuple(tags))

@@ -1,120 +1,158 @@
 """Overlay-text filter: burned-in subtitles, corner logos and running timestamps.
 
-Text laid over footage has two properties natural content rarely has together:
+At analysis size (long side 256 px) overlay glyphs are 3-8 px tall, too small to read but
+still a clear texture: a row of glyphs is a dense horizontal band of thin high-contrast
+strokes (white top-hat response). Three cues separate that band from picture
+content:
 
-- character structure: thin high-contrast strokes (a white or black top-hat response) that
-  group into rows of several similar-sized blobs;
-- a fixed position on screen: the stroke pixels keep their place and their grey level while
-  the picture under them changes.
+1. **Averaging**: each of ``n_windows`` short windows (``window_frames`` frames over
+   ``window_s`` seconds) is averaged. Moving footage smears into a blur while text, fixed
+   on screen, stays crisp; strokes are found on the average.
+2. **Stability**: a band counts when its stroke pixels keep their grey level over the
+   window (``stable_frac``), or are clearly steadier than the picture around them
+   (``stable_margin``; a ticking clock changes a few digits, its surround changes more).
+3. **Persistence**: overlays stay in place, so only screen area covered by bands in at
+   least half of the windows (and at least two) counts; texture that happens to look like a
+   band appears in a different place each time.
 
-The scene is looked at through ``n_windows`` short windows of ``window_frames`` frames each
-(subtitles change every few seconds, so stability is judged within a window, not across
-the scene). In each window a pixel is a *stable stroke* when it is a stroke in every frame
-and its grey level barely changes; stable strokes are merged into word boxes and kept when
-the box looks like text. A running timestamp or counter is the opposite case: a small
-text-like box whose strokes change while the rest of the picture stays put, or a box of
-stable strokes (the date, the colons) next to it. ``text_area`` is the median over windows of
-the picture fraction covered by text-like boxes; ``text_windows`` the fraction of windows
-that found any. Stable strokes only mean something when the rest of the picture changes: in
-windows where it does not, only boxes with clear character rows count.
+A band must also look like a row of glyphs rather than part of the scene: wider than tall
+(``band_aspect``, relaxed to ``corner_aspect`` in the corners where logos sit), densely
+filled, with upright strokes (``upright_min``: a lit rail or kerb is all horizontal edge),
+and not embedded in other steady strokes (``ring_strokes_max``: in a locked-off street
+scene every fence bar is steady; an overlay stands alone).
+
+Windows in which nothing moves are skipped (a frozen shot gives no averaging cue), and
+drawn content (slides, test patterns, cartoons, as the video-type filter classifies them)
+is left alone: its text is part of the content and the video-type filter's call.
+``text_area`` is the persistent band area as a fraction of the picture.
 """
 
 from __future__ import annotations
 
+import math
 from typing import ClassVar, Literal
 
 import cv2
 import numpy as np
 
 from tasks.curate.filters import FilterConfig, Verdict, check_frames, sample_indices
+from tasks.curate.video_type import VideoTypeConfig
+from tasks.curate.video_type import judge as judge_type
+
+IMMERKAER = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
 
 class OverlayTextConfig(FilterConfig):
     stage: ClassVar[str] = "overlay_text"
 
     action: Literal["reject", "tag"] = "reject"
-    n_windows: int = 4
-    window_frames: int = 5
-    window_s: float = 1.0
-    stroke_px: int = 7  # top-hat kernel: strokes thinner than this count
-    stroke_min: float = 40.0  # top-hat grey levels of a stroke
-    stable_max: float = 24.0  # grey range over a window of a stable pixel
-    aspect_min: float = 1.2
-    fill_min: float = 0.15
-    fill_max: float = 0.75
-    strokes_per_height: float = 1.0
-    gap_px: int = 5  # widest gap between glyphs of one word
-    ring_changed_min: float = 0.3  # fixed text: changed fraction of the picture around it
-    ring_still_max: float = 0.1  # running text: changed fraction around it
-    text_area_min: float = 0.002  # text_area above which the clip has overlay text
-    text_windows_min: float = 0.5
+    n_windows: int = 6
+    window_frames: int = 6
+    window_s: float = 0.6
+    still_change: int = 16  # grey levels; a window where almost nothing changes this much is skipped
+    stroke_px: int = 5  # top-hat kernel: strokes thinner than this
+    # Burned-in captions, clocks and logos are light glyphs with a dark rim; dark strokes
+    # alone are common in textures (cracks, shadows), so they are opt-in.
+    dark_text: bool = False
+    stroke_min: float = 24.0  # top-hat grey levels of a stroke ...
+    stroke_sigmas: float = 6.0  # ... and at least this many noise sigmas of the averaged frame
+    gap_px: int = 3  # glyph gaps closed along a row
+    ring_strokes_max: float = 0.05  # steady strokes around a band: it is part of a still scene
+    upright_min: float = 0.3  # |d/dx| over |d/dy| inside a band: glyphs have upright strokes, a rail has none
+    band_max_height: float = 0.1  # of the picture height
+    band_aspect: float = 3.0  # width / height of a text row
+    corner_aspect: float = 1.5  # in the picture corners (short logos)
+    band_min_area: int = 60  # px
+    band_fill: float = 0.45  # stroke pixels / band box
+    stable_max: int = 24  # grey range over a window of a stable pixel
+    stable_frac: float = 0.4
+    stable_margin: float = 0.2
+    text_area_min: float = 0.001
+    skip_drawn: bool = True  # leave text on slides and test patterns to the video-type filter
 
 
-def stroke_map(g: np.ndarray, config: OverlayTextConfig) -> np.ndarray:
-    """h x w bool: thin bright or dark strokes of an h x w uint8 grey frame."""
+def stroke_map(mean: np.ndarray, config: OverlayTextConfig) -> np.ndarray:
+    """h x w bool map of thin bright (and, with ``dark_text``, dark) strokes of an h x w
+    uint8 averaged grey frame; the threshold rises with the frame's own noise level."""
     k = cv2.getStructuringElement(cv2.MORPH_RECT, (config.stroke_px, config.stroke_px))
-    white = cv2.morphologyEx(g, cv2.MORPH_TOPHAT, k)
-    black = cv2.morphologyEx(g, cv2.MORPH_BLACKHAT, k)
-    return np.maximum(white, black) >= config.stroke_min
+    sigma = np.sqrt(np.pi / 2) / 6.0 * float(np.median(np.abs(cv2.filter2D(mean.astype(np.float32), -1, IMMERKAER))))
+    hat = cv2.morphologyEx(mean, cv2.MORPH_TOPHAT, k)
+    if config.dark_text:
+        hat = np.maximum(hat, cv2.morphologyEx(mean, cv2.MORPH_BLACKHAT, k))
+    return hat >= max(config.stroke_min, config.stroke_sigmas * sigma)
 
 
-def text_boxes(mask: np.ndarray, config: OverlayTextConfig) -> list[tuple[int, int, int, int]]:
-    """(x, y, w, h) boxes of text-like rows of strokes in an h x w bool mask.
+def bands(strokes: np.ndarray, config: OverlayTextConfig) -> list[tuple[int, int, int, int]]:
+    """(x, y, w, h) boxes of text-row-like bands in an h x w bool stroke map.
 
-    Glyphs often touch at analysis size, so instead of counting blobs a row counts when a
-    horizontal line through it crosses many strokes: at least ``strokes_per_height`` stroke
-    starts per box height of width, the rhythm of letters.
+    Two subtitle lines often touch through a descender or their backing box, so each blob is
+    first cut into rows at the rows where its stroke fill drops.
     """
-    m = mask.astype(np.uint8)
-    h, w = m.shape
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
-    sizes = stats[1:]
-    small = (sizes[:, 3] <= h // 5) & (sizes[:, 2] <= w // 3) & (sizes[:, 4] >= 3)
-    keep = np.zeros(n, bool)
-    keep[1:] = small
-    glyphs = keep[labels].astype(np.uint8)
-    words = cv2.dilate(glyphs, cv2.getStructuringElement(cv2.MORPH_RECT, (config.gap_px, 1)))
-    nw, word_labels, wstats, _ = cv2.connectedComponentsWithStats(words, connectivity=8)
-    boxes = []
-    for i in range(1, nw):
-        x, y, bw, bh, _ = wstats[i]
-        if bh < 4 or bh > h // 5 or bw < config.aspect_min * bh:
+    h, w = strokes.shape
+    closed = cv2.morphologyEx(strokes.astype(np.uint8), cv2.MORPH_CLOSE,
+                              cv2.getStructuringElement(cv2.MORPH_RECT, (config.gap_px, 1)))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(closed, connectivity=4)
+    out = []
+    for i, (x, y, bw, bh, area) in enumerate(stats[1:], start=1):
+        if bh < 3 or bh > h // 3 or area < config.band_min_area * config.band_fill:
             continue
-        inner = glyphs[y: y + bh, x: x + bw] * (word_labels[y: y + bh, x: x + bw] == i)
-        fill = float(inner.mean())
-        rows = inner[bh // 5: bh - bh // 5 or None].astype(np.int8)
-        starts = (np.diff(rows, axis=1) == 1).sum(axis=1)
-        rhythm = float(np.median(starts)) * bh / bw
-        if config.fill_min <= fill <= config.fill_max and rhythm >= config.strokes_per_height:
-            boxes.append((int(x), int(y), int(bw), int(bh)))
-    return boxes
+        blob = labels[y:y + bh, x:x + bw] == i
+        fill = blob.mean(axis=1)
+        rows = fill >= 0.3 * fill.max()
+        start = None
+        for r in range(bh + 1):
+            if r < bh and rows[r]:
+                start = r if start is None else start
+                continue
+            if start is not None:
+                cols = np.flatnonzero(blob[start:r].any(axis=0))
+                box = (int(x + cols[0]), int(y + start), int(cols[-1] - cols[0] + 1), r - start)
+                if _is_band(box, int(blob[start:r, cols[0]:cols[-1] + 1].sum()), (h, w), config):
+                    out.append(box)
+                start = None
+    return out
 
 
-def ring_change(box: tuple[int, int, int, int], changed: np.ndarray) -> float:
-    """Fraction of changed pixels in a ring one box-height wide around an (x, y, w, h) box."""
+def _is_band(box: tuple[int, int, int, int], area: int, shape: tuple[int, int], config: OverlayTextConfig) -> bool:
     x, y, bw, bh = box
-    h, w = changed.shape
+    h, w = shape
+    corner = (x + bw <= 0.3 * w or x >= 0.7 * w) and (y + bh <= 0.3 * h or y >= 0.7 * h)
+    aspect = config.corner_aspect if corner else config.band_aspect
+    return (3 <= bh <= config.band_max_height * h and bw >= aspect * bh and bw * bh >= config.band_min_area
+            and area >= config.band_fill * bw * bh)
+
+
+def _ring_mean(mask: np.ndarray, box: tuple[int, int, int, int]) -> float:
+    """Mean of a bool mask in a ring one box-height wide around an (x, y, w, h) box."""
+    x, y, bw, bh = box
+    h, w = mask.shape
     x0, y0, x1, y1 = max(0, x - bh), max(0, y - bh), min(w, x + bw + bh), min(h, y + 2 * bh)
-    outer = changed[y0:y1, x0:x1]
-    inner = changed[y:y + bh, x:x + bw]
-    n = outer.size - inner.size
-    return float((outer.sum() - inner.sum()) / n) if n > 0 else 0.0
+    n = (y1 - y0) * (x1 - x0) - bw * bh
+    return float((mask[y0:y1, x0:x1].sum() - mask[y:y + bh, x:x + bw].sum()) / n) if n > 0 else 0.0
 
 
-def window_score(greys: np.ndarray, config: OverlayTextConfig) -> tuple[float, float]:
-    """(fixed text area, changing text area) as picture fractions for W x h x w uint8 frames.
-
-    Fixed text: rows of stable strokes with a changing picture around them. Changing text:
-    rows of strokes that change in place (a running clock) inside a still surround.
-    """
-    strokes = np.stack([stroke_map(g, config) for g in greys])
-    changed = (greys.max(axis=0).astype(np.int16) - greys.min(axis=0)) > config.stable_max
-    area = greys.shape[1] * greys.shape[2]
-    fixed = [b for b in text_boxes(strokes.all(axis=0) & ~changed, config)
-             if ring_change(b, changed) >= config.ring_changed_min]
-    running = [b for b in text_boxes(strokes.any(axis=0) & changed, config)
-               if ring_change(b, changed) <= config.ring_still_max]
-    return (sum(b[2] * b[3] for b in fixed) / area, sum(b[2] * b[3] for b in running) / area)
+def window_mask(greys: np.ndarray, config: OverlayTextConfig) -> np.ndarray | None:
+    """h x w bool screen area of stable text bands in W x h x w uint8 grey frames; None when
+    the picture does not move (nothing to average away)."""
+    span = greys.max(axis=0).astype(np.int16) - greys.min(axis=0)
+    if (span > config.still_change).mean() < 0.002:
+        return None
+    mean = np.clip(greys.mean(axis=0, dtype=np.float32) + 0.5, 0, 255).astype(np.uint8)
+    strokes = stroke_map(mean, config)
+    stable = span <= config.stable_max
+    mf = mean.astype(np.float32)
+    gx = np.abs(cv2.Sobel(mf, cv2.CV_32F, 1, 0))
+    gy = np.abs(cv2.Sobel(mf, cv2.CV_32F, 0, 1))
+    mask = np.zeros(mean.shape, bool)
+    for x, y, bw, bh in bands(strokes, config):
+        if gx[y:y + bh, x:x + bw].sum() < config.upright_min * gy[y:y + bh, x:x + bw].sum():
+            continue
+        if _ring_mean(strokes & stable, (x, y, bw, bh)) > config.ring_strokes_max:
+            continue
+        inside = stable[y:y + bh, x:x + bw][strokes[y:y + bh, x:x + bw]].mean()
+        if inside >= config.stable_frac or inside - _ring_mean(stable, (x, y, bw, bh)) >= config.stable_margin:
+            mask[y:y + bh, x:x + bw] = True
+    return mask
 
 
 def judge(frames: np.ndarray, times: np.ndarray, config: OverlayTextConfig) -> Verdict:
@@ -123,24 +161,27 @@ def judge(frames: np.ndarray, times: np.ndarray, config: OverlayTextConfig) -> V
         return Verdict(keep=True)
     check_frames(frames, times)
     times = np.asarray(times, np.float64)
+    if config.skip_drawn:
+        kind = judge_type(frames, times, VideoTypeConfig(n_samples=3))
+        if not kind.keep:
+            return Verdict(keep=True, scores={"text_area": 0.0, "text_windows": 0.0}, tags=("overlay:not_judged",))
     span = min(config.window_s, float(times[-1] - times[0]))
     last_start = int(np.searchsorted(times, times[-1] - span, side="right")) - 1
-    areas, changing = [], []
+    masks = []
     for start in sample_indices(max(1, last_start + 1), config.n_windows):
         stop = int(np.searchsorted(times, times[start] + span, side="right"))
         idx = start + sample_indices(max(2, stop - start), config.window_frames)
-        idx = idx[idx < len(frames)]
-        greys = np.stack([cv2.cvtColor(frames[i], cv2.COLOR_RGB2GRAY) for i in idx])
-        a, c = window_score(greys, config)
-        areas.append(a)
-        changing.append(c)
-    found = [max(a, c) > config.text_area_min for a, c in zip(areas, changing)]
-    scores = {
-        "text_area": float(np.median(np.maximum(areas, changing))),
-        "text_windows": float(np.mean(found)),
-        "text_changing_area": float(np.median(changing)),
-    }
-    has_text = scores["text_windows"] >= config.text_windows_min
+        greys = np.stack([cv2.cvtColor(frames[i], cv2.COLOR_RGB2GRAY) for i in idx if i < len(frames)])
+        mask = window_mask(greys, config)
+        if mask is not None:
+            masks.append(mask)
+    if masks:
+        count = np.sum(masks, axis=0)
+        text_area = float((count >= max(2, math.ceil(0.5 * len(masks)))).mean())
+        windows = float(np.mean([m.any() for m in masks]))
+    else:
+        text_area = windows = 0.0
+    scores = {"text_area": text_area, "text_windows": windows}
+    has_text = text_area >= config.text_area_min
     reason = "overlay_text" if has_text and config.action == "reject" else None
-    tags = ("overlay:text",) if has_text else ()
-    return Verdict(keep=reason is None, reason=reason, scores=scores, tags=tags)
+    return Verdict(keep=reason is None, reason=reason, scores=scores, tags=("overlay:text",) if has_text else ())

@@ -9,9 +9,15 @@ neither dark picture nor flat texture):
   texture or contrast the footage has: clean low-texture footage with a few crisp edges stays
   sharp, while a busy but defocused scene does not. ``edge_fraction`` says how many edges
   were found; with almost none the blur score is not trusted.
-- ``luma_mean``, ``clip_high``, ``clip_low``: mean luma and fractions of clipped pixels.
-- ``noise``: Immerkaer's noise sigma (grey levels) measured in the flattest half of the
-  picture, where texture cannot masquerade as noise.
+- ``luma_mean``, ``luma_p01``, ``luma_p99``, ``clip_high``, ``clip_low``: exposure of the
+  picture; overexposure is a bright mean, or a washed-out picture whose darkest 1 % is still
+  light grey (blacks lifted, few pixels clipped); underexposure is judged by the 99th
+  percentile (nothing in the shot is bright), which a dark slide with white text does not
+  meet; exposure is only judged on footage, not on drawn content (a palette of a few colours,
+  ``filters.palette_size``, or whatever the video-type filter's rules call drawn).
+- ``noise``: sensor-noise sigma (grey levels) from consecutive frames aligned by phase
+  correlation (``temporal_noise``): noise changes every frame, texture does not, so fine
+  texture is not mistaken for noise the way a single-frame estimate would.
 """
 
 from __future__ import annotations
@@ -21,7 +27,8 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from tasks.curate.filters import FilterConfig, Verdict, active_box, check_frames, sample_indices
+from tasks.curate.filters import FilterConfig, Verdict, active_box, check_frames, palette_size, sample_indices
+from tasks.curate.video_type import looks_drawn
 
 
 class QualityConfig(FilterConfig):
@@ -30,20 +37,27 @@ class QualityConfig(FilterConfig):
     n_samples: int = 12
     range_px: int = 9
     edge_range_min: float = 40.0  # grey range for a pixel to sit on a real edge
-    min_edge_fraction: float = 0.002  # below this the blur score is not trusted
     sharp_percentile: float = 90.0
-    sharpness_min: float = 0.16  # below: "blur"
-    overexposed_clip: float = 0.20  # clip_high above: "overexposed"
-    overexposed_mean: float = 205.0  # or luma_mean above
-    underexposed_mean: float = 40.0  # luma_mean below: "underexposed"
-    noise_max: float = 6.0  # noise above: "noise"
+    sharpness_min: float = 0.30  # below: "blur"
+    drawn_palette: float = 8.0  # palette_size at or below: drawn content, exposure not judged
+    overexposed_mean: float = 215.0  # luma_mean at or above: "overexposed"
+    overexposed_clip: float = 0.4  # or this fraction of pixels clipped white
+    moving_min: float = 0.05  # fraction of pixels changing between samples: a moving picture
+    # Washed out: no shadows left anywhere (even the darkest 1 % is light grey) in a bright
+    # picture. On the tuning seeds clean footage's 1st percentile reached 81 and washed-out
+    # shots started at 103; 92 is between them.
+    washed_p01: float = 92.0
+    washed_mean: float = 160.0
+    underexposed_p99: float = 64.0  # 99th luma percentile at or below: "underexposed"
+    n_noise_pairs: int = 6
+    noise_max: float = 3.5  # noise sigma (grey levels at analysis size) above: "noise"
 
 
 IMMERKAER = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
 
 
-def frame_measures(g: np.ndarray, config: QualityConfig) -> tuple[float, float, float]:
-    """(sharpness, edge_fraction, noise) of one h x w uint8 grey frame."""
+def frame_measures(g: np.ndarray, config: QualityConfig) -> tuple[float, float]:
+    """(sharpness, edge_fraction) of one h x w uint8 grey frame."""
     gf = g.astype(np.float32)
     # Grey range from a lightly smoothed copy: smoothing leaves a step's range alone but keeps
     # noise from inflating it (which would read as blur).
@@ -63,12 +77,42 @@ def frame_measures(g: np.ndarray, config: QualityConfig) -> tuple[float, float, 
         sharpness = float(np.percentile(ratio, config.sharp_percentile))
     else:
         sharpness = float("nan")
-    # Immerkaer's Laplacian-difference kernel cancels planes and ramps, leaving noise; it is
-    # read only in the flattest half of the picture so texture does not count as noise.
-    residual = np.abs(cv2.filter2D(gf, -1, IMMERKAER))[1:-1, 1:-1]
-    flat = local_range[1:-1, 1:-1] <= np.median(local_range)
-    noise = float(np.sqrt(np.pi / 2) / 6.0 * residual[flat].mean()) if flat.any() else 0.0
-    return sharpness, edge_fraction, noise
+    return sharpness, edge_fraction
+
+
+def _blocks(a: np.ndarray, size: int = 8) -> np.ndarray:
+    """Means of the non-overlapping size x size blocks of a 2-D array, flattened."""
+    h, w = a.shape
+    return a[: h // size * size, : w // size * size].reshape(h // size, size, w // size, size).mean(axis=(1, 3)).ravel()
+
+
+def temporal_noise(a: np.ndarray, b: np.ndarray, quantile: float = 25.0) -> float:
+    """Noise sigma (grey levels) from two consecutive h x w uint8 grey frames.
+
+    Sensor noise is new in every frame while texture moves with the camera: after aligning b
+    to a (phase correlation), the Immerkaer residuals of texture cancel and those of noise do
+    not. A low quantile over 8x8 blocks keeps the blocks where alignment worked, and blocks
+    near black or white are skipped because clipping hides noise there.
+    """
+    fa, fb = a.astype(np.float32), b.astype(np.float32)
+    window = cv2.createHanningWindow(fa.shape[::-1], cv2.CV_32F)
+    # Windowed copies: cv2.phaseCorrelate(a, b, window) would window a and b in place.
+    (dx, dy), _ = cv2.phaseCorrelate(fa * window, fb * window)
+    # Whole-pixel shift only: interpolating b would smooth its noise away.
+    sx, sy = int(round(dx)), int(round(dy))
+    h, w = fa.shape
+    pad = max(abs(sx), abs(sy)) + 2
+    if 2 * pad >= min(h, w) - 16:
+        return float("nan")
+    ra = cv2.filter2D(fa, -1, IMMERKAER)[pad:h - pad, pad:w - pad]
+    rb = cv2.filter2D(fb, -1, IMMERKAER)[pad + sy:h - pad + sy, pad + sx:w - pad + sx]
+    blocks = _blocks(np.abs(ra - rb))
+    level = _blocks(fa[pad:h - pad, pad:w - pad])
+    usable = (level > 24) & (level < 230)
+    if usable.sum() < 10:
+        return float("nan")
+    # Mean |difference of two independent Immerkaer residuals| is 6 sqrt(2) sqrt(2/pi) sigma.
+    return float(np.sqrt(np.pi / 2) / (6.0 * np.sqrt(2.0)) * np.percentile(blocks[usable], quantile))
 
 
 def judge(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> Verdict:
@@ -78,38 +122,52 @@ def judge(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> Verdi
     check_frames(frames, times)
     picked = frames[sample_indices(len(frames), config.n_samples)]
     top, bottom, left, right = active_box(picked)
-    sharp, edge_frac, noise, means, highs, lows = [], [], [], [], [], []
+    picked = picked[:, top:bottom, left:right]
+    sharp, edge_frac, greys = [], [], []
     for frame in picked:
-        g = cv2.cvtColor(frame[top:bottom, left:right], cv2.COLOR_RGB2GRAY)
-        s, e, n = frame_measures(g, config)
+        g = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+        s, e = frame_measures(g, config)
         sharp.append(s)
         edge_frac.append(e)
-        noise.append(n)
-        means.append(float(g.mean()))
-        highs.append(float((g >= 250).mean()))
-        lows.append(float((g <= 5).mean()))
+        greys.append(g)
+    noise = []
+    for i in sample_indices(len(frames) - 1, config.n_noise_pairs):
+        a, b = (cv2.cvtColor(frames[j, top:bottom, left:right], cv2.COLOR_RGB2GRAY) for j in (i, i + 1))
+        noise.append(temporal_noise(a, b))
+    noise = [n for n in noise if n == n]
+    luma = np.stack(greys)
+    moving = float(np.median((np.abs(np.diff(luma.astype(np.int16), axis=0)) > 6).mean(axis=(1, 2)))) if len(luma) > 1 else 0.0
     valid = [s for s in sharp if s == s]
     scores = {
         "sharpness": float(np.median(valid)) if valid else float("nan"),
         "edge_fraction": float(np.median(edge_frac)),
-        "luma_mean": float(np.mean(means)),
-        "clip_high": float(np.mean(highs)),
-        "clip_low": float(np.mean(lows)),
-        "noise": float(np.median(noise)),
+        "luma_mean": float(luma.mean()),
+        "luma_p99": float(np.percentile(luma, 99)),
+        "luma_p01": float(np.percentile(luma, 1)),
+        "clip_high": float((luma >= 250).mean()),
+        "clip_low": float((luma <= 5).mean()),
+        "noise": float(np.median(noise)) if noise else 0.0,
+        "palette": float(np.median([palette_size(f) for f in picked[:: max(1, len(picked) // 3)]])),
+        "luma_change": moving,
     }
+    # A drawn page (slides, cartoons, bars) has a chosen palette, not an exposure: a white
+    # slide is not an overexposed shot. Only footage with a real palette is judged for it.
+    # Drawn is the video-type filter's call (its default rules, a few samples), so a white
+    # slide is judged the same way by both filters.
+    footage = scores["palette"] > config.drawn_palette and not looks_drawn(frames, times)
+    # A blown-out shot can clip to a few flat tones and look drawn (or keep dark areas that
+    # hold its mean down): much of it clipped white while the picture moves is overexposure
+    # whatever its palette, while a still checkerboard with as much white is not.
+    blown = scores["clip_high"] >= config.overexposed_clip and moving >= config.moving_min
     reason = None
-    if scores["clip_high"] > config.overexposed_clip or scores["luma_mean"] > config.overexposed_mean:
+    washed = scores["luma_p01"] >= config.washed_p01 and scores["luma_mean"] >= config.washed_mean
+    if (footage and (scores["luma_mean"] >= config.overexposed_mean or washed)) or blown:
         reason = "overexposed"
-    elif scores["luma_mean"] < config.underexposed_mean:
+    elif footage and scores["luma_p99"] <= config.underexposed_p99:
         reason = "underexposed"
     elif scores["noise"] > config.noise_max:
         reason = "noise"
-    elif (
-        scores["edge_fraction"] >= config.min_edge_fraction
-        and valid
-        and scores["sharpness"] < config.sharpness_min
-    ):
+    elif valid and scores["sharpness"] < config.sharpness_min:
         reason = "blur"
     exposure = "bright" if scores["luma_mean"] > 170 else "dark" if scores["luma_mean"] < 70 else "normal"
-    tags = (f"exposure:{exposure}",)
-    return Verdict(keep=reason is None, reason=reason, scores=scores, tags=tags)
+    return Verdict(keep=reason is None, reason=reason, scores=scores, tags=(f"exposure:{exposure}",))

@@ -7,11 +7,15 @@ edges. Measured on ``n_samples`` frames inside the letterbox:
 
 - ``flat``: fraction of pixels whose 5x5 neighbourhood spans at most ``flat_range`` grey
   levels in every channel (a fill; codec ringing is smoothed away first);
-- ``colours``: how many 4-bit-per-channel colours cover 95 % of the picture;
-- ``axis_edges``: share of strong gradient energy within 4 degrees of horizontal or
-  vertical (bars, slides, windows);
+- ``colours``: how many 4-bit-per-channel colours cover 95 % of the contrast-stretched
+  picture (``filters.palette_size``);
+- ``axis_edges``: share of long-edge pixels (Canny components spanning 15 % of the short
+  side) whose gradient lies within 4 degrees of horizontal or vertical (bars, grids);
+- ``lines``: share of gradient energy in the 5 % strongest columns and rows of its
+  projection (edges running through the whole picture);
 - ``saturated``: fraction of strongly saturated pixels (colour bars);
-- ``still``: fraction of pixels that never change over the sampled frames.
+- ``still``: fraction of pixels that never change over the sampled frames; ``change``:
+  median fraction that changes between consecutive samples (slides barely do).
 
 A small decision list maps these to a type; the allow/block lists say which types pass.
 """
@@ -23,7 +27,7 @@ from typing import ClassVar, Literal
 import cv2
 import numpy as np
 
-from tasks.curate.filters import FilterConfig, Verdict, active_box, check_frames, sample_indices
+from tasks.curate.filters import FilterConfig, Verdict, active_box, check_frames, palette_size, sample_indices
 
 VideoType = Literal["physical", "animation", "slides", "test_pattern", "screen"]
 
@@ -35,51 +39,87 @@ class VideoTypeConfig(FilterConfig):
     block: tuple[VideoType, ...] = ()  # blocked even when allowed
     n_samples: int = 8
     flat_range: int = 3
-    drawn_flat: float = 0.55  # flat above this: drawn content
-    drawn_colours: int = 48  # ... or colours below this with flat above drawn_flat_low
-    drawn_flat_low: float = 0.35
-    pattern_axis: float = 0.7  # axis_edges above: bars, grids, slides or screens
-    pattern_saturated: float = 0.3  # saturated above (with axis edges): test pattern
-    slides_still: float = 0.9  # still above (with axis edges): slides
+    # Drawn content: a handful of flat colours (camera footage and renders have dozens).
+    drawn_colours: float = 8.0
+    # Bars and grids: long edges nearly all axis-aligned, a still picture, a modest palette.
+    long_edge: float = 0.15  # an edge is long from this fraction of the short side
+    pattern_colours: float = 64.0
+    pattern_axis: float = 0.75
+    pattern_still: float = 0.75
+    bars_saturated: float = 0.6  # colour bars: strongly saturated ...
+    bars_axis: float = 0.6  # ... with mostly axis-aligned long edges
+    steps_colours: float = 16.0  # grey steps and ramps: a dozen shades, frozen, axis-aligned
+    steps_still: float = 0.97
+    steps_axis: float = 0.55
+    slides_change: float = 0.01  # drawn and changing less between samples: slides
+    # A page held on screen: mostly flat fills, nothing changing between samples, and a palette
+    # that anti-aliased text on a coloured ground widens past drawn_colours but that stays far
+    # below footage's (a frozen camera shot keeps its shading: dozens of colours, little flat).
+    page_colours: float = 20.0
+    page_flat: float = 0.6  # slides measured 0.67-0.74; a flat-shaded sim render (aloha) 0.56
+    # Screen captures are not in the corpus; this rule is deliberately strict (a still
+    # warehouse aisle render has axis edges 0.72 and lines 0.42).
+    screen_axis: float = 0.85
+    screen_lines: float = 0.5
+    screen_still: float = 0.95
 
 
-def frame_features(frame: np.ndarray, config: VideoTypeConfig) -> tuple[float, float, float, float]:
-    """(flat, colours, axis_edges, saturated) of one h x w x 3 uint8 RGB frame."""
+def frame_features(frame: np.ndarray, config: VideoTypeConfig) -> tuple[float, float, float, float, float]:
+    """(flat, colours, axis_edges, lines, saturated) of one h x w x 3 uint8 RGB frame."""
     soft = cv2.GaussianBlur(frame, (3, 3), 0)
     k = np.ones((5, 5), np.uint8)
     span = (cv2.dilate(soft, k).astype(np.int16) - cv2.erode(soft, k)).max(axis=2)
     flat = float((span <= config.flat_range).mean())
-    q = (frame >> 4).astype(np.int32)
-    counts = np.bincount(((q[..., 0] << 8) | (q[..., 1] << 4) | q[..., 2]).ravel(), minlength=4096)
-    cover = np.cumsum(np.sort(counts)[::-1])
-    colours = float(np.searchsorted(cover, 0.95 * cover[-1]) + 1)
-    g = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY).astype(np.float32)
+    colours = palette_size(frame)
+    grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+    g = grey.astype(np.float32)
     gx = cv2.Sobel(g, cv2.CV_32F, 1, 0)
     gy = cv2.Sobel(g, cv2.CV_32F, 0, 1)
-    mag = np.sqrt(gx * gx + gy * gy)
-    strong = mag > 80.0
-    if strong.sum() >= 20:
-        angle = np.degrees(np.arctan2(np.abs(gy[strong]), np.abs(gx[strong])))
-        near = np.minimum(angle, 90.0 - angle) <= 4.0
-        axis_edges = float((mag[strong] * near).sum() / mag[strong].sum())
+    # Orientation of long edges only: glyphs of a burned-in counter or caption are short and
+    # point every way, the boundaries of bars and grids are long and axis-aligned.
+    edges = cv2.Canny(grey, 60, 150)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(edges, connectivity=8)
+    long_ids = np.zeros(n, bool)
+    long_ids[1:] = np.maximum(stats[1:, 2], stats[1:, 3]) >= config.long_edge * min(grey.shape)
+    on_long = long_ids[labels]
+    if on_long.sum() >= 20:
+        angle = np.degrees(np.arctan2(np.abs(gy[on_long]), np.abs(gx[on_long])))
+        axis_edges = float((np.minimum(angle, 90.0 - angle) <= 4.0).mean())
     else:
         axis_edges = 0.0
+    # Lines that run through the whole picture (bars, grids) pile their gradient into a few
+    # columns or rows of the projection; perspective and texture spread it out.
+    ax, ay = np.abs(gx), np.abs(gy)
+    lines = (_top_share(ax.mean(axis=0)) * ax.sum() + _top_share(ay.mean(axis=1)) * ay.sum()) / (ax.sum() + ay.sum() + 1e-6)
     hsv = cv2.cvtColor(frame, cv2.COLOR_RGB2HSV)
     saturated = float(((hsv[..., 1] >= 160) & (hsv[..., 2] >= 100)).mean())
-    return flat, colours, axis_edges, saturated
+    return flat, colours, axis_edges, float(lines), saturated
+
+
+def _top_share(profile: np.ndarray, share: float = 0.05) -> float:
+    """Fraction of a 1-D profile's total held by its top ``share`` of entries."""
+    k = max(1, int(share * profile.size))
+    return float(np.sort(profile)[-k:].sum() / (profile.sum() + 1e-6))
 
 
 def classify(scores: dict[str, float], config: VideoTypeConfig) -> str:
     """The video type named by the features in ``scores`` (see the module docstring)."""
-    drawn = scores["flat"] >= config.drawn_flat or (
-        scores["flat"] >= config.drawn_flat_low and scores["colours"] <= config.drawn_colours)
-    if not drawn:
-        return "physical"
-    if scores["axis_edges"] >= config.pattern_axis:
-        if scores["saturated"] >= config.pattern_saturated:
-            return "test_pattern"
-        return "slides" if scores["still"] >= config.slides_still else "screen"
-    return "animation"
+    still = scores["colours"] <= config.pattern_colours and scores["still"] >= config.pattern_still
+    pattern = still and (
+        scores["axis_edges"] >= config.pattern_axis
+        or (scores["saturated"] >= config.bars_saturated and scores["axis_edges"] >= config.bars_axis)
+        or (config.drawn_colours < scores["colours"] <= config.steps_colours and scores["still"] >= config.steps_still
+            and scores["axis_edges"] >= config.steps_axis))
+    if pattern:
+        return "test_pattern"
+    page = (scores["colours"] <= config.page_colours and scores["flat"] >= config.page_flat
+            and scores["change"] <= config.slides_change)
+    if scores["colours"] <= config.drawn_colours or page:
+        return "slides" if scores["change"] <= config.slides_change else "animation"
+    if (scores["axis_edges"] >= config.screen_axis and scores["lines"] >= config.screen_lines
+            and scores["still"] >= config.screen_still):
+        return "screen"
+    return "physical"
 
 
 def judge(frames: np.ndarray, times: np.ndarray, config: VideoTypeConfig) -> Verdict:
@@ -91,11 +131,19 @@ def judge(frames: np.ndarray, times: np.ndarray, config: VideoTypeConfig) -> Ver
     top, bottom, left, right = active_box(picked)
     picked = picked[:, top:bottom, left:right]
     features = np.array([frame_features(f, config) for f in picked])
-    grey = picked.max(axis=3)
-    still = float(((grey.max(axis=0).astype(np.int16) - grey.min(axis=0)) <= 6).mean())
-    scores = dict(zip(("flat", "colours", "axis_edges", "saturated"), map(float, np.median(features, axis=0))))
+    grey = picked.max(axis=3).astype(np.int16)
+    still = float(((grey.max(axis=0) - grey.min(axis=0)) <= 6).mean())
+    change = float(np.median((np.abs(np.diff(grey, axis=0)) > 6).mean(axis=(1, 2))))
+    scores = dict(zip(("flat", "colours", "axis_edges", "lines", "saturated"), map(float, np.median(features, axis=0))))
     scores["still"] = still
+    scores["change"] = change
     kind = classify(scores, config)
     keep = kind in config.allow and kind not in config.block
     return Verdict(keep=keep, reason=None if keep else f"non_physical:{kind}",
                    scores={f"type_{k}": v for k, v in scores.items()}, tags=(f"type:{kind}",))
+
+
+def looks_drawn(frames: np.ndarray, times: np.ndarray, n_samples: int = 4) -> bool:
+    """Whether the default video-type rules call a scene anything but physical footage, from a
+    few samples: the other filters leave exposure and stillness of drawn pages to this one."""
+    return "type:physical" not in judge(frames, times, VideoTypeConfig(n_samples=n_samples)).tags

@@ -1,0 +1,131 @@
+"""Video-type filter: physical footage versus colour bars, slides and flat animation, with
+allow and block lists."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from tasks.curate.video_type import VideoTypeConfig, classify, judge
+
+H, W, FPS, T = 144, 256, 30.0, 60
+TIMES = np.arange(T) / FPS
+FONT = cv2.FONT_HERSHEY_SIMPLEX
+
+
+def footage(seed: int = 0) -> np.ndarray:
+    """A pan over shaded texture with objects, plus mild sensor noise: camera-like."""
+    rng = np.random.default_rng(seed)
+    big = cv2.resize(rng.random((24, 70, 3)).astype(np.float32), (W + 120, H), interpolation=cv2.INTER_CUBIC)
+    big = np.clip(big * 170 + 40, 0, 255).astype(np.uint8)
+    for _ in range(60):
+        c = tuple(int(v) for v in rng.integers(20, 235, 3))
+        cv2.circle(big, (int(rng.integers(W + 120)), int(rng.integers(H))), int(rng.integers(3, 12)), c, -1)
+    frames = np.stack([big[:, i:i + W] for i in range(T)]).astype(np.float32)
+    return np.clip(frames + rng.normal(0, 2.0, frames.shape), 0, 255).astype(np.uint8)
+
+
+def colour_bars() -> np.ndarray:
+    bars = [(191, 191, 191), (191, 191, 0), (0, 191, 191), (0, 191, 0), (191, 0, 191), (191, 0, 0), (0, 0, 191)]
+    base = np.zeros((H, W, 3), np.uint8)
+    for i, c in enumerate(bars):
+        base[: H * 2 // 3, i * W // 7:(i + 1) * W // 7] = c
+    base[H * 3 // 4:, : W // 3] = (0, 33, 76)
+    base[H * 3 // 4:, W // 3: 2 * W // 3] = (255, 255, 255)
+    frames = np.repeat(base[None], T, axis=0)
+    for t in range(T):  # a running counter, as test signals carry
+        cv2.rectangle(frames[t], (88, 78), (168, 98), (0, 0, 0), -1)
+        cv2.putText(frames[t], f"00:00:{t // 30:02d}:{t % 30:02d}", (92, 93), FONT, 0.4, (255, 255, 255), 1)
+    return frames
+
+
+def slides() -> np.ndarray:
+    frames = np.empty((T, H, W, 3), np.uint8)
+    for t in range(T):
+        frames[t] = (246, 244, 238)
+        frames[t, :22] = (0, 84, 147)
+        cv2.putText(frames[t], "Fleet summary", (10, 16), FONT, 0.5, (255, 255, 255), 1, cv2.LINE_AA)
+        for k in range(1 + t // 20):  # bullets build in
+            cv2.circle(frames[t], (16, 44 + 22 * k), 2, (0, 84, 147), -1)
+            cv2.putText(frames[t], "route planning and loads", (24, 48 + 22 * k), FONT, 0.35, (30, 30, 34), 1, cv2.LINE_AA)
+    return frames
+
+
+def animation() -> np.ndarray:
+    frames = np.empty((T, H, W, 3), np.uint8)
+    for t in range(T):
+        frames[t] = (142, 202, 230)
+        frames[t, 100:] = (106, 153, 78)
+        cv2.circle(frames[t], (30 + 3 * t, 60), 18, (230, 57, 70), -1, cv2.LINE_AA)
+        cv2.circle(frames[t], (30 + 3 * t, 60), 18, (20, 20, 24), 2, cv2.LINE_AA)
+        pts = np.array([[200 - 2 * t, 90], [230 - 2 * t, 90], [215 - 2 * t, 60]], np.int32)
+        cv2.fillPoly(frames[t], [pts], (255, 183, 3), cv2.LINE_AA)
+    return frames
+
+
+def test_footage_is_physical_even_letterboxed_or_black_and_white():
+    cfg = VideoTypeConfig()
+    frames = footage()
+    assert judge(frames, TIMES, cfg).tags == ("type:physical",)
+    boxed = np.zeros_like(frames)
+    boxed[:, 16:128] = frames[:, 16:128]
+    assert judge(boxed, TIMES, cfg).keep
+    mono = np.repeat(frames.mean(axis=3, keepdims=True).astype(np.uint8), 3, axis=3)
+    assert judge(mono, TIMES, cfg).keep
+
+
+def test_drawn_content_is_rejected_with_its_type():
+    cfg = VideoTypeConfig()
+    assert judge(colour_bars(), TIMES, cfg).reason == "non_physical:test_pattern"
+    assert judge(slides(), TIMES, cfg).reason == "non_physical:slides"
+    assert judge(animation(), TIMES, cfg).reason == "non_physical:animation"
+
+
+def test_allow_and_block_lists():
+    allow_slides = VideoTypeConfig(allow=("physical", "slides"))
+    assert judge(slides(), TIMES, allow_slides).keep
+    assert not judge(colour_bars(), TIMES, allow_slides).keep
+    no_footage = VideoTypeConfig(block=("physical",))
+    verdict = judge(footage(), TIMES, no_footage)
+    assert not verdict.keep and verdict.reason == "non_physical:physical"
+
+
+def test_classify_decision_list():
+    cfg = VideoTypeConfig()
+    base = {"flat": 0.1, "colours": 120.0, "axis_edges": 0.25, "lines": 0.1, "saturated": 0.0, "still": 0.1, "change": 0.5}
+    assert classify(base, cfg) == "physical"
+    assert classify({**base, "colours": 3.0, "change": 0.0}, cfg) == "slides"
+    assert classify({**base, "colours": 3.0, "change": 0.2}, cfg) == "animation"
+    assert classify({**base, "colours": 20.0, "axis_edges": 0.9, "still": 0.95}, cfg) == "test_pattern"
+    # Axis-aligned long edges alone (a corridor, shelves) are not a test pattern while things move.
+    assert classify({**base, "colours": 20.0, "axis_edges": 0.9, "still": 0.3}, cfg) == "physical"
+
+
+def dark_slides() -> np.ndarray:
+    """A slide deck on a dark coloured ground with anti-aliased light text, two slides: the
+    anti-aliasing widens the palette past drawn_colours, as in the corpus's dark slides."""
+    frames = np.empty((T, H, W, 3), np.uint8)
+    for t in range(T):
+        k = t // 30
+        frames[t] = (38, 52, 71) if k == 0 else (61, 29, 44)
+        cv2.putText(frames[t], "Quarterly review" if k == 0 else "Sensor roadmap", (14, 24), cv2.FONT_HERSHEY_DUPLEX,
+                    0.6, (235, 235, 235), 1, cv2.LINE_AA)
+        for j in range(4):
+            cv2.putText(frames[t], "safety metrics team launch", (24, 56 + 20 * j), FONT, 0.4, (235, 235, 235), 1,
+                        cv2.LINE_AA)
+    return frames
+
+
+def test_held_page_with_a_wider_palette_is_slides_but_frozen_footage_is_not():
+    cfg = VideoTypeConfig()
+    page = dark_slides()
+    verdict = judge(page, TIMES, cfg)
+    assert verdict.reason == "non_physical:slides", verdict.scores
+    # Frozen camera footage: nothing changes either, but shading keeps its palette wide.
+    frozen = np.repeat(footage()[:1], T, axis=0)
+    assert judge(frozen, TIMES, cfg).keep
+    base = {"flat": 0.7, "colours": 18.0, "axis_edges": 0.3, "lines": 0.2, "saturated": 0.0, "still": 0.9, "change": 0.0}
+    assert classify(base, cfg) == "slides"
+    assert classify({**base, "colours": cfg.page_colours + 1}, cfg) == "physical"
+    assert classify({**base, "flat": cfg.page_flat - 0.01}, cfg) == "physical"
+    assert classify({**base, "change": 0.2}, cfg) == "physical"  # a moving dark scene of a few tones
