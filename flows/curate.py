@@ -8,9 +8,11 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 from prefect import flow, task
-from prefect.artifacts import create_markdown_artifact
 
 from flows.recording import RunContext, recorded_run
+from flows.report import markdown_table, progress
+from flows.report import publish as publish_report
+from flows.runners import task_runner
 from schemas import paths
 from schemas.hashing import sha256_file, stable_id
 from schemas.manifest import ScenarioManifest
@@ -21,7 +23,7 @@ from tasks.curate import analyse, dedup, lineage, shards
 from tasks.curate.config import CurateConfig, load_config
 from tasks.curate.decode import DecodeError
 from tasks.curate.encode import encode_clips
-from tasks.curate.inputs import Input, discover
+from tasks.curate.inputs import Input, damage, decode_reason, discover
 
 load_manifest = task(manifests.load, name="load-manifest")
 analyse_video = task(analyse.analyse_video, name="analyse-video", retries=0)
@@ -37,8 +39,9 @@ def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: flo
 
 def _quarantine(run: RunContext, item: Input, stage: str, reason: str, detail: str) -> None:
     key = stable_id("quarantine", str(item.path), item.sha256 or "")
-    run.write(lineage.quarantined(str(item.path), item.sha256, stage, reason, detail, run.manifest_hash,
-                                  run.stage_run_id(stage, key)))
+    record = _stage(run, stage, key, 1, 0, time.perf_counter(), source=str(item.path), reason=reason)
+    run.write(LineageBatch(stage_runs=[record.model_copy(update={"status": "failed"})]).extend(
+        lineage.quarantined(str(item.path), item.sha256, stage, reason, detail, run.manifest_hash, record.stage_run_id)))
     run.fail_input(f"{item.path}: {detail}")
     print(f"quarantined {item.path}: {detail}")
 
@@ -60,25 +63,38 @@ def analyse_all(run: RunContext, inputs: list[Input], config: CurateConfig,
         else:
             futures[key] = (item, cache, time.perf_counter(),
                             analyse_video.submit(item.path, item.sha256, config, manifest, run.manifest_hash))
-    for key, (item, cache, t0, future) in futures.items():
-        try:
-            result = future.result()
-        except DecodeError as exc:
-            _quarantine(run, item, "decode", "unreadable", str(exc))
-            continue
-        except Exception as exc:  # a batch never dies on one video
-            _quarantine(run, item, "analyse", type(exc).__name__, f"{item.path}: {exc}")
-            continue
-        analyse.save(result, cache)
-        stage = _stage(run, "analyse", key, 1, len(result.clips), t0, source=str(item.path), **result.decode)
-        rejected = [c for c in result.clips if not c.kept]
-        batch = LineageBatch(stage_runs=[stage]).extend(
-            lineage.raw_video(str(item.path), item.sha256, item.bytes, run.manifest_hash, stage.stage_run_id,
-                              {"info": result.info, "decode": result.decode})).extend(
-            lineage.clips(rejected, stage.stage_run_id))
-        run.write(batch)
-        results.append(result)
+    with progress(len(futures), "analyse videos") as bar:
+        for key, (item, cache, t0, future) in futures.items():
+            result = _analysed(run, item, future)
+            bar.advance()
+            if result is None:
+                continue
+            analyse.save(result, cache)
+            stage = _stage(run, "analyse", key, 1, len(result.clips), t0, source=str(item.path), **result.decode)
+            rejected = [c for c in result.clips if not c.kept]
+            batch = LineageBatch(stage_runs=[stage]).extend(
+                lineage.raw_video(str(item.path), item.sha256, item.bytes, run.manifest_hash, stage.stage_run_id,
+                                  {"info": result.info, "decode": result.decode})).extend(
+                lineage.clips(rejected, stage.stage_run_id))
+            run.write(batch)
+            results.append(result)
     return sorted(results, key=lambda r: r.source)
+
+
+def _analysed(run: RunContext, item: Input, future) -> analyse.VideoAnalysis | None:
+    """The analysis of one input, or None when the input is quarantined instead."""
+    try:
+        result = future.result()
+    except DecodeError as exc:
+        _quarantine(run, item, "decode", decode_reason(str(exc)), str(exc))
+        return None
+    except Exception as exc:  # a batch never dies on one video
+        _quarantine(run, item, "analyse", type(exc).__name__, f"{item.path}: {exc}")
+        return None
+    if (damaged := damage(result.decode)) is not None:
+        _quarantine(run, item, "decode", damaged[0], f"{item.path}: {damaged[1]}")
+        return None
+    return result
 
 
 def deduplicate(run: RunContext, analyses: list[analyse.VideoAnalysis], config: CurateConfig) -> list[ClipRecord]:
@@ -110,16 +126,19 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
             continue
         spans = [(c.start_frame, c.end_frame) for c in group]
         futures.append((key, group, targets, time.perf_counter(), encode_video.submit(source, spans, targets, config.encode)))
-    for key, group, targets, t0, future in futures:
-        try:
-            future.result()
-        except Exception as exc:
-            run.fail_input(f"{group[0].source_uri}: encoding failed: {exc}")
-            continue
-        encoded = [_with_file(c, t, root) for c, t in zip(group, targets)]
-        stage = _stage(run, "encode", key, len(group), len(encoded), t0, source=group[0].source_uri)
-        run.write(LineageBatch(stage_runs=[stage]).extend(lineage.clips(encoded, stage.stage_run_id)))
-        out.extend(encoded)
+    with progress(len(futures), "encode kept clips") as bar:
+        for key, group, targets, t0, future in futures:
+            try:
+                future.result()
+            except Exception as exc:
+                run.fail_input(f"{group[0].source_uri}: encoding failed: {exc}")
+                continue
+            finally:
+                bar.advance()
+            encoded = [_with_file(c, t, root) for c, t in zip(group, targets)]
+            stage = _stage(run, "encode", key, len(group), len(encoded), t0, source=group[0].source_uri)
+            run.write(LineageBatch(stage_runs=[stage]).extend(lineage.clips(encoded, stage.stage_run_id)))
+            out.extend(encoded)
     return out
 
 
@@ -129,14 +148,13 @@ def _with_file(clip: ClipRecord, target: Path, root: Path) -> ClipRecord:
 
 
 def publish(run: RunContext, counts: Counter, n_shards: int, inputs: int) -> str:
-    lines = ["| stage | outcome | clips |", "|---|---|---|"]
-    lines += [f"| {stage} | {outcome} | {n} |" for (stage, outcome), n in sorted(counts.items())]
-    text = (f"## curate: {inputs} inputs, {len(run.failures)} quarantined, {n_shards} shards\n\n" + "\n".join(lines))
-    create_markdown_artifact(markdown=text, key="curate-summary", description="clips kept and rejected by reason")
-    return text
+    table = markdown_table(("stage", "outcome", "clips"), [(s, o, n) for (s, o), n in sorted(counts.items())])
+    return publish_report("curate", f"{inputs} inputs, {len(run.failures)} quarantined, {n_shards} shards", table,
+                          "clips kept and rejected by reason")
 
 
-@flow(name="curate", log_prints=True)
+# The runner (threads or Ray) comes from WORLDLINE_TASK_RUNNER when this module is imported.
+@flow(name="curate", log_prints=True, task_runner=task_runner())
 def curate(inputs: list[str], manifest: str | None = None, config: str | None = None) -> dict:
     """Curate the videos in `inputs` (files or folders) under an optional scenario manifest."""
     settings = Settings()
@@ -144,10 +162,11 @@ def curate(inputs: list[str], manifest: str | None = None, config: str | None = 
     scenario = load_manifest(Path(manifest)) if manifest else None
     with recorded_run("curate", settings, scenario, source_uri=manifest,
                       params={"inputs": inputs, "manifest": manifest, "config": config}) as run:
+        shards.remove_stale_temporaries(settings.data_root)  # left by a killed run; we hold the writer lock
         found = discover(inputs)
         for item in found:
             if item.problem:
-                _quarantine(run, item, "input", "unusable", f"{item.path}: {item.problem}")
+                _quarantine(run, item, "input", item.reason or "unusable", f"{item.path}: {item.problem}")
         analyses = analyse_all(run, [i for i in found if not i.problem], cfg, scenario)
         unique = deduplicate(run, analyses, cfg)
         encoded = encode_all(run, unique, cfg)

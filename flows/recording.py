@@ -16,8 +16,10 @@ from schemas.hashing import stable_id
 from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.records import LineageBatch, RunRecord
 from schemas.settings import Settings
-from tasks import manifests
+from tasks import faults, manifests
 from warehouse.store import Warehouse
+
+_LIVE: set[str] = set()  # runs this process has started and not finished
 
 
 def current_flow_run_id() -> str | None:
@@ -62,11 +64,14 @@ def recorded_run(flow: str, settings: Settings, manifest: ScenarioManifest | Non
     run_id = prefect_id or str(uuid.uuid4())
     digest = manifest_hash(manifest) if manifest is not None else None
     warehouse = Warehouse(settings.warehouse_path)
+    warehouse.before_commit = lambda: faults.point("lineage")
+    _LIVE.add(run_id)
     try:
         if manifest is not None:
             warehouse.write(manifests.lineage(manifest, source_uri))
         warehouse.start_run(RunRecord(run_id=run_id, flow=flow, manifest_hash=digest,
                                       prefect_flow_run_id=prefect_id, params=params or {}))
+        warehouse.close_interrupted_runs(_LIVE)  # rows left 'running' by a killed process
         ctx = RunContext(run_id=run_id, flow=flow, warehouse=warehouse, manifest_hash=digest, settings=settings)
         try:
             yield ctx
@@ -78,4 +83,5 @@ def recorded_run(flow: str, settings: Settings, manifest: ScenarioManifest | Non
             message = f"{len(ctx.failures)} input(s) failed: " + "; ".join(ctx.failures)[:1800]
         warehouse.finish_run(run_id, ctx.status, message)
     finally:
+        _LIVE.discard(run_id)
         warehouse.close()

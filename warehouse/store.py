@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from importlib import resources
 from pathlib import Path
@@ -61,6 +61,7 @@ class Warehouse:
     def __init__(self, path: Path | str, read_only: bool = False):
         self.path = Path(path)
         self.read_only = read_only
+        self.before_commit: Callable[[], None] | None = None  # called inside each batch's transaction
         if not read_only:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         elif not self.path.exists():
@@ -133,6 +134,8 @@ class Warehouse:
             if batch.edges:
                 batch_edges = _arrow("edges", batch.edges)  # noqa: F841 (read by closure.sql)
                 con.execute(closure_sql())
+            if self.before_commit is not None:
+                self.before_commit()  # the crash tests' fault point (tasks/faults.py, "lineage")
         return written
 
     def start_run(self, run: RunRecord) -> None:
@@ -142,6 +145,20 @@ class Warehouse:
                 "VALUES (?, ?, ?, ?, ?, ?)",
                 [run.run_id, run.flow, run.manifest_hash, run.prefect_flow_run_id, run.status,
                  json.dumps(run.params, sort_keys=True, default=str)])
+
+    def close_interrupted_runs(self, alive: set[str]) -> int:
+        """Mark 'running' rows of runs not in ``alive`` as failed; returns how many.
+
+        Only a process holding the file read-write calls this, and DuckDB lets one process
+        do that, so a 'running' row that this process did not start belongs to a process that
+        died (SIGKILL, power cut) before it could finish its row.
+        """
+        keep = pa.table({"k": sorted(alive) or [""]})  # noqa: F841
+        with self.transaction() as con:
+            rows = con.execute("SELECT run_id FROM runs WHERE status = 'running' AND run_id NOT IN (SELECT k FROM keep)").fetchall()
+            con.execute("UPDATE runs SET status = 'failed', message = 'interrupted: the process died before the run ended' "
+                        "WHERE status = 'running' AND run_id NOT IN (SELECT k FROM keep)")
+        return len(rows)
 
     def finish_run(self, run_id: str, status: str, message: str | None = None) -> None:
         with self.transaction() as con:
@@ -153,9 +170,10 @@ class Warehouse:
         if not input_keys:
             return set()
         keys = pa.table({"k": input_keys})  # noqa: F841
-        rows = self.con.execute(
-            "SELECT input_key FROM stage_runs WHERE stage = ? AND status IN ('completed', 'partial') "
-            "AND input_key IN (SELECT k FROM keys)", [stage]).fetchall()
+        with self._lock:  # one connection shared by threads: every use holds the lock
+            rows = self.con.execute(
+                "SELECT input_key FROM stage_runs WHERE stage = ? AND status IN ('completed', 'partial') "
+                "AND input_key IN (SELECT k FROM keys)", [stage]).fetchall()
         return {r[0] for r in rows}
 
     # -- reading ------------------------------------------------------------------------
@@ -167,7 +185,8 @@ class Warehouse:
 
     def counts(self) -> dict[str, int]:
         tables = ("runs", *COLUMNS)
-        return {t: self.con.execute(f"SELECT count(*) FROM {t}").fetchall()[0][0] for t in tables}
+        with self._lock:
+            return {t: self.con.execute(f"SELECT count(*) FROM {t}").fetchall()[0][0] for t in tables}
 
     def close(self) -> None:
         self.con.close()

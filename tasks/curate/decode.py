@@ -22,8 +22,12 @@ import numpy as np
 from av.video.reformatter import VideoReformatter
 from pydantic import BaseModel, ConfigDict, Field
 
+from tasks import faults
+
 MAX_SIDE = 16384
 MAX_FPS = 1000.0
+# Below this a header is broken, not slow: an MP4 whose mdhd time scale is 0 reads as 1/512 fps.
+MIN_FPS = 0.1
 PROBE_PACKETS = 240  # enough packets to see irregular timestamps and a decodable frame
 
 
@@ -138,15 +142,17 @@ def probe(path: Path | str) -> SourceInfo:
     cheap enough to run before any heavy work.
     """
     path = Path(path)
+    faults.point("decode")  # crash tests: a video starts decoding
     container = open_video(path)
     try:
         stream = container.streams.video[0]
         ctx = stream.codec_context
         width, height = int(ctx.width or 0), int(ctx.height or 0)
         if not (0 < width <= MAX_SIDE and 0 < height <= MAX_SIDE):
-            raise DecodeError(f"{path}: absurd frame size {width}x{height}")
+            why = " (FFmpeg refused the size the header declares, or it declares none)" if not width * height else ""
+            raise DecodeError(f"{path}: absurd frame size {width}x{height}{why}")
         rate = _rate(stream)
-        if rate is None or not 0 < float(rate) <= MAX_FPS:
+        if rate is None or not MIN_FPS <= float(rate) <= MAX_FPS:
             raise DecodeError(f"{path}: absurd or missing frame rate {rate}")
         fps = float(rate)
         tb = stream.time_base
@@ -181,6 +187,13 @@ def probe(path: Path | str) -> SourceInfo:
         except av.FFmpegError as error:
             if rotation is None:
                 raise DecodeError(f"{path}: unreadable stream ({error.strerror or error})") from None
+        if rotation is None and pts:  # a decoder holding back frames (B-frame delay) gives them up on flush
+            try:
+                frames = stream.codec_context.decode(None)
+            except av.FFmpegError:
+                frames = []
+            if frames:
+                rotation = int(round(frames[0].rotation / 90.0)) * 90 % 360
         if rotation is None:
             raise DecodeError(f"{path}: no decodable frame in the first {len(pts)} packets")
         # An average rate that disagrees with the container's base rate is how FFmpeg shows a

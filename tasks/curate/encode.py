@@ -22,6 +22,7 @@ import numpy as np
 from av.video.frame import PictureType
 from pydantic import BaseModel, ConfigDict, Field
 
+from tasks import faults
 from tasks.curate.decode import DecodeError, SourceInfo, frame_pts, open_video, probe
 
 
@@ -140,6 +141,7 @@ class _Writer:
             for block in iter(lambda: handle.read(1 << 20), b""):
                 digest.update(block)
         size = self.tmp.stat().st_size
+        faults.point("clip")  # crash tests: a whole clip in its temporary file, not yet renamed
         os.replace(self.tmp, self.out)
         return EncodedClip(path=self.out, sha256=digest.hexdigest(), bytes=size, frames=self.frames,
                            width=self.width, height=self.height, start_frame=start, end_frame=end)

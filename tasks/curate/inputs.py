@@ -1,8 +1,15 @@
-"""Find the input videos of a curation batch; anything unusable is reported, never raised."""
+"""Find the input videos of a curation batch and say, precisely, why one cannot be curated.
+
+Nothing here raises on a bad input: ``discover`` reports unusable paths (``Input.problem``
+and a short ``Input.reason``), ``decode_reason`` names what a DecodeError was about, and
+``damage`` decides whether a decoded video is too damaged to curate. Each reason ends up in
+the ``rejections`` table of the quarantined input.
+"""
 
 from __future__ import annotations
 
 import os
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,6 +23,11 @@ class Input:
     sha256: str | None = None
     bytes: int = 0
     problem: str | None = None  # why it cannot be curated; None when it can
+    reason: str | None = None  # the problem as a short code (rejections.reason)
+
+
+def _bad(path: Path, reason: str, problem: str) -> Input:
+    return Input(path, problem=problem, reason=reason)
 
 
 def _check(path: Path) -> Input:
@@ -23,19 +35,66 @@ def _check(path: Path) -> Input:
         if path.is_symlink():
             path.resolve(strict=True)  # raises on a loop or a dangling link
         if path.is_dir():
-            return Input(path, problem="is a directory, not a video file")
+            return _bad(path, "directory", "is a directory, not a video file")
         if not path.exists():
-            return Input(path, problem="does not exist")
-        if not os.access(path, os.R_OK):
-            return Input(path, problem="permission denied: cannot read")
+            return _bad(path, "missing", "does not exist")
+        if not path.is_file():
+            return _bad(path, "not_a_file", "not a regular file (a device, pipe or socket)")
+        if not os.access(path, os.R_OK):  # root may read anything: then the open below decides
+            return _bad(path, "permission_denied", "permission denied: cannot read")
         size = path.stat().st_size
         if size == 0:
-            return Input(path, problem="empty file (0 bytes)")
+            return _bad(path, "empty", "empty file (0 bytes)")
+        with open(path, "rb") as handle:  # opening, not os.access, is what proves we may read
+            cut = iso_truncation(handle, size)
+        if cut:
+            return _bad(path, "truncated", cut)
         return Input(path, sha256=sha256_file(str(path)), bytes=size)
     except RuntimeError as exc:  # pathlib reports symlink loops as RuntimeError on 3.11
-        return Input(path, problem=f"symlink loop: {exc}")
+        return _bad(path, "symlink_loop", f"symlink loop: {exc}")
+    except FileNotFoundError:
+        return _bad(path, "missing", "does not exist (a dangling symlink)" if path.is_symlink() else "does not exist")
+    except PermissionError as exc:
+        return _bad(path, "permission_denied", f"permission denied: {exc.strerror or exc}")
     except OSError as exc:
-        return Input(path, problem=f"cannot read: {exc.strerror or exc}")
+        if "too many levels of symbolic links" in str(exc).lower():
+            return _bad(path, "symlink_loop", f"symlink loop: {exc.strerror or exc}")
+        return _bad(path, "unreadable", f"cannot read: {exc.strerror or exc}")
+
+
+def iso_truncation(handle, size: int) -> str | None:
+    """For an ISO media file (MP4, MOV: it starts with an 'ftyp' box), the problem when a
+    top-level box runs past the end of the file, i.e. the file was cut off; else None.
+
+    Reads only box headers. A file cut inside 'mdat' either lost the index ('moov' comes last)
+    or keeps an index of frames that are not there; either way it is still being copied or
+    was damaged, and the demuxer alone would report the first as "invalid data".
+    """
+    offset, kinds = 0, set()
+    while offset + 8 <= size:
+        handle.seek(offset)
+        head = handle.read(16)
+        box_size, kind = struct.unpack(">I4s", head[:8])
+        if not kinds and kind != b"ftyp":
+            return None  # not an ISO media file: the decoder judges it
+        kinds.add(kind)
+        if box_size == 1 and len(head) == 16:
+            box_size = struct.unpack(">Q", head[8:16])[0]
+        elif box_size == 0:  # "to the end of the file"
+            offset = size
+            break
+        if box_size < 8:
+            return f"box {kind!r} at byte {offset} has an impossible size {box_size}"
+        if offset + box_size > size:
+            name = kind.decode("latin-1")
+            return (f"cut off: the file ends at byte {size} inside its '{name}' box "
+                    f"(which declares {offset + box_size} bytes)")
+        offset += box_size
+    if kinds and offset < size:
+        return f"cut off: the file ends at byte {size} inside a box header"
+    if kinds and b"moov" not in kinds:
+        return "cut off: no 'moov' box (the index of the frames) before the end of the file"
+    return None
 
 
 def discover(paths: list[str | Path]) -> list[Input]:
@@ -53,3 +112,42 @@ def discover(paths: list[str | Path]) -> list[Input]:
         else:
             found.setdefault(str(path), _check(path))
     return [found[k] for k in sorted(found)]
+
+
+# DecodeError messages (tasks/curate/decode.py) -> rejection reason; first match wins.
+DECODE_REASONS = (
+    ("no video stream", "no_video_stream"),
+    ("absurd frame size", "absurd_frame_size"),
+    ("absurd or missing frame rate", "absurd_frame_rate"),
+    ("absurd sample aspect ratio", "absurd_aspect_ratio"),
+    ("empty file", "empty"),
+    ("no such file", "missing"),
+)
+
+
+def decode_reason(message: str) -> str:
+    """The rejection reason of a DecodeError; "unreadable" when it names nothing more precise."""
+    for phrase, reason in DECODE_REASONS:
+        if phrase in message:
+            return reason
+    return "unreadable"
+
+
+def damage(decode: dict) -> tuple[str, str] | None:
+    """(reason, detail) when a decoded video is damaged; None when it decoded cleanly.
+
+    ``decode`` is ``VideoAnalysis.decode``. Any damage quarantines the whole input: a clip cut
+    from a file that lost frames would carry a jump the filters never saw, and a truncated
+    file is often still being copied.
+    """
+    frames = int(decode.get("frames", 0))
+    problems = "; ".join(decode.get("problems") or [])
+    if decode.get("truncated"):
+        return "truncated", f"the file ends mid-stream after {frames} frames ({problems})"
+    bad = int(decode.get("corrupt", 0)) + int(decode.get("missing", 0)) + int(decode.get("decode_errors", 0))
+    if bad:
+        return "corrupt_frames", (f"{decode.get('corrupt', 0)} corrupt and {decode.get('missing', 0)} missing frames, "
+                                  f"{decode.get('decode_errors', 0)} packets rejected ({problems})")
+    if frames < 2:
+        return "single_frame", f"only {frames} decodable frame: a still image, not a video"
+    return None

@@ -22,6 +22,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from schemas import paths
 from schemas.hashing import stable_id
 from schemas.records import ArtifactRecord, ClipRecord, EdgeRecord, LineageBatch, ShardRecord
+from tasks import faults
 
 SHARD_SCHEMA = pa.schema(
     [
@@ -166,9 +167,45 @@ def _write_atomic(table: pa.Table, path: Path, config: ShardConfig) -> None:
             row_group_size=config.row_group_rows, use_dictionary=["source_id", "source_uri", "manifest_hash"],
             write_statistics=True,
         )
+        _fsync(tmp)
+        faults.point("shard")  # crash tests: a whole shard in its temporary file, not yet renamed
         os.replace(tmp, path)
+        _fsync(path.parent)  # the rename itself survives a power cut
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _fsync(path: Path) -> None:
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+# Temporary files of the atomic writers (".<name>.<pid>.tmp", ".<name>.<pid>.tmp.mp4") that a
+# killed process left behind. Never read: the final name only appears by rename.
+TEMPORARY_GLOBS = (".*.tmp", ".*.tmp.mp4")
+SWEPT_FOLDERS = ("clips", "shards", "analysis")
+
+
+def remove_stale_temporaries(root: Path) -> list[Path]:
+    """Delete the temporaries a crashed run left under root's clip, shard and analysis folders.
+
+    Call it only while holding the warehouse for writing: DuckDB lets one process do that, so
+    no other curate run is writing here and every temporary found is a dead process's.
+    """
+    removed = []
+    for folder in SWEPT_FOLDERS:
+        base = Path(root) / folder
+        if not base.is_dir():
+            continue
+        for pattern in TEMPORARY_GLOBS:
+            for stale in base.rglob(pattern):
+                if stale.is_file():
+                    stale.unlink(missing_ok=True)
+                    removed.append(stale)
+    return sorted(removed)
 
 
 def _sha256(path: Path) -> str:
