@@ -4,7 +4,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 
-.PHONY: install demo test bench clean
+.PHONY: install demo test bench bench-deps clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -20,8 +20,14 @@ demo: install
 test: install
 	$(BIN)/python -m pytest -q
 
-bench: install
+# Debian's ffmpeg: the `scenedetect` baseline of bench/curate_speed.py and the concat in curate_memory.py.
+bench-deps:
+	command -v ffmpeg >/dev/null || (apt-get update && apt-get install -y ffmpeg)
+
+bench: install bench-deps
 	$(BIN)/python bench/lineage.py
+	$(BIN)/python bench/curate_speed.py
+	$(BIN)/python bench/curate_memory.py
 
 clean:
 	rm -rf .worldline bench/out
