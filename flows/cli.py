@@ -268,10 +268,31 @@ def inspect(video: Path, as_json: bool = typer.Option(False, "--json", help="pri
         _print_rows(cols, [tuple(r[c] for c in cols) for r in rows], "table", str(video))
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-def tokenize() -> None:
-    """Train the video tokenizer and write token shards (not built yet)."""
-    _not_built("tokenize", 7)
+@app.command()
+def tokenize(
+    shards: str = typer.Argument(..., help="a folder of curated shards, or a manifest hash (12+ hex digits)"),
+    preset: str = typer.Option("tiny-dv4x8x8", help="tokenizer preset (models/tokenizer.py PRESETS)"),
+    steps: int = typer.Option(200, min=1, max=1_000_000, help="training steps"),
+    size: int = typer.Option(64, min=8, max=1024, help="frames are centre-cropped and resized to size x size"),
+) -> None:
+    """Train a video tokenizer on curated shards and write token shards (Prefect flow `tokenize`)."""
+    from models.tokenizer import PRESETS
+
+    if preset not in PRESETS:
+        _fail(f"--preset: unknown tokenizer preset {preset!r}; known: {', '.join(sorted(PRESETS))}")
+    if size % PRESETS[preset].spatial_compression:
+        _fail(f"--size: {size} is not a multiple of {preset}'s spatial compression {PRESETS[preset].spatial_compression}")
+    from flows.tokenize import shard_files
+    from flows.tokenize import tokenize as tokenize_flow
+
+    try:
+        shard_files(shards, Settings().data_root.resolve())
+    except FileNotFoundError as exc:
+        _fail(str(exc))
+    result = tokenize_flow(shards, preset, steps, size)
+    psnr = f", train PSNR {result['final_psnr']:.2f} dB" if result["final_psnr"] is not None else " (already trained)"
+    out.print(f"checkpoint {result['checkpoint_id']}{psnr}; {len(result['token_shards'])} new token shards "
+              f"from {result['clips']} clips", highlight=False)
 
 
 @app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})

@@ -34,7 +34,7 @@ def test_validate_hash_and_show():
     assert manifest_hash(load(GOOD)) in result.output and "controller_noise" in result.output
 
 
-@pytest.mark.parametrize("step", ["tokenize", "train", "panels", "evaluate"])
+@pytest.mark.parametrize("step", ["train", "panels", "evaluate"])
 def test_unbuilt_steps_say_so(step):
     result = runner.invoke(app, [step, "whatever"])
     assert result.exit_code == 3 and "not built yet" in result.output

@@ -1,0 +1,161 @@
+"""tokenize: curated shards -> decode clips -> train a tokenizer (TensorBoard, safetensors
+checkpoint) -> encode every shard into a token shard. Checkpoint, token shards, their edges
+and the training metrics land in lineage; a finished step is skipped on a re-run."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import torch
+from prefect import flow, task
+
+from flows.recording import RunContext, recorded_run
+from flows.report import markdown_table
+from flows.report import publish as publish_report
+from models.tokenizer import VideoTokenizer, preset
+from schemas import paths
+from schemas.hashing import content_hash, sha256_file, stable_id
+from schemas.records import ArtifactRecord, LineageBatch, StageRunRecord
+from schemas.settings import Settings
+from tasks.tokenize import data, tokens
+from tasks.tokenize.train import TrainConfig, psnr, to_tensor, train_tokenizer
+
+STAGE_TRAIN, STAGE_ENCODE = "train_tokenizer", "encode_tokens"
+
+
+def shard_files(shards: str, root: Path) -> list[Path]:
+    """A folder or file of shards, or a manifest hash (its first 12+ hex digits) naming its shard folder."""
+    place = Path(shards)
+    if not place.exists() and len(shards) >= 12 and all(ch in "0123456789abcdef" for ch in shards):
+        place = Path(root) / Path(paths.SHARD_FILE.format(manifest_hash=shards, resolution="x", length="x", index=0)).parents[2]
+    found = data.find_shards([place])
+    if not found:
+        raise FileNotFoundError(f"{shards}: no shard files there (give a shard folder or a manifest hash)")
+    return found
+
+
+def shard_artifacts(run: RunContext, files: list[Path]) -> list[tuple[Path, str, str, str | None]]:
+    """(path, uri, artifact id, manifest hash) per shard; shards lineage has never seen are recorded now."""
+    root = run.settings.data_root.resolve()
+    out, unknown = [], []
+    for path in files:
+        digest = sha256_file(str(path))
+        uri = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
+        _, rows = run.warehouse.query("SELECT artifact_id, manifest_hash FROM artifacts WHERE kind = 'shard' "
+                                      "AND sha256 = $sha ORDER BY artifact_id LIMIT 1", {"sha": digest})
+        if rows:
+            out.append((path, uri, rows[0][0], rows[0][1]))
+        else:
+            shard_id = stable_id("shard", uri, digest)
+            unknown.append(ArtifactRecord(artifact_id=shard_id, kind="shard", uri=uri, sha256=digest,
+                                          bytes=path.stat().st_size, attrs={"registered_by": "tokenize"}))
+            out.append((path, uri, shard_id, None))
+    run.write(LineageBatch(artifacts=unknown))
+    return out
+
+
+@task(name="decode-shard", retries=1)
+def decode_shard(path: Path, root: Path, uri: str, size: int, max_frames: int) -> list[data.Clip]:
+    return data.shard_clips(path, root, uri, size, max_frames)
+
+
+@task(name="train-tokenizer")
+def train(clips: list[data.Clip], config: TrainConfig, folder: Path, extra: dict) -> tuple[list[dict], int]:
+    """Train from the preset's seeded initial weights, log to TensorBoard beside the checkpoint,
+    save it; returns the history and the parameter count."""
+    from torch.utils.tensorboard import SummaryWriter
+
+    torch.manual_seed(config.seed)
+    model = VideoTokenizer(preset(config.preset))
+    with SummaryWriter(str(folder / "tensorboard")) as writer:
+        def log(record: dict) -> None:
+            for name in ("loss", "psnr", "lr"):
+                writer.add_scalar(f"train/{name}", record[name], record["step"])
+        history = train_tokenizer(model, data.frame_arrays(clips), config, log)
+    tokens.save_checkpoint(model, folder, {"train": config.model_dump(mode="json"), **extra})
+    return history, sum(p.numel() for p in model.parameters())
+
+
+@task(name="encode-shard", retries=1)
+def encode_shard(folder: Path, clips: list[data.Clip], target: Path, max_frames: int) -> tuple[str, int, int, float | None]:
+    """Encode a shard's clips to a token shard; returns sha256, bytes, rows and the mean round-trip PSNR."""
+    model = tokens.load_checkpoint(folder)
+    rows, scores = [], []
+    for clip in clips:
+        row = tokens.encode_clip(model, clip, max_frames)
+        if row is not None:
+            rows.append(row)
+            scores.append(psnr(to_tensor(clip.frames[:row["frames"]])[None], tokens.decode_row(model, row)).item())
+    digest, size = tokens.write_token_shard(rows, target)
+    return digest, size, len(rows), (sum(scores) / len(scores) if scores else None)
+
+
+def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: float, mh: str | None, **attrs):
+    return StageRunRecord(stage_run_id=run.stage_run_id(stage, key), run_id=run.run_id, stage=stage, input_key=key,
+                          manifest_hash=mh, n_in=n_in, n_out=n_out, seconds=round(time.perf_counter() - t0, 3),
+                          attrs=attrs)
+
+
+@flow(name="tokenize", log_prints=True)
+def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: int = 200, size: int = 64,
+             batch_size: int = 4, seed: int = 0, max_encode_frames: int = 129) -> dict:
+    """Train tokenizer ``preset_name`` for ``steps`` on the clips of ``shards``, then tokenize every shard."""
+    settings = Settings()
+    root = settings.data_root.resolve()
+    model_config = preset(preset_name)
+    config = TrainConfig(preset=preset_name, steps=steps, size=size, batch_size=batch_size, seed=seed,
+                         clip_frames=1 + 2 * model_config.temporal_compression, threads=min(2, torch.get_num_threads()))
+    files = shard_files(shards, root)
+    with recorded_run("tokenize", settings, params={"shards": shards, "preset": preset_name, "steps": steps,
+                                                    "size": size, "batch_size": batch_size, "seed": seed}) as run:
+        known = shard_artifacts(run, files)
+        hashes = {mh for *_, mh in known if mh}
+        mh = hashes.pop() if len(hashes) == 1 else None
+        decoded = {uri: decode_shard.submit(path, root, uri, size, max_encode_frames) for path, uri, _, _ in known}
+        clips = {uri: future.result() for uri, future in decoded.items()}
+
+        t0 = time.perf_counter()
+        key = stable_id(STAGE_TRAIN, content_hash(model_config), content_hash(config), *sorted(s for _, _, s, _ in known))
+        checkpoint_id = stable_id("checkpoint", key)
+        folder = paths.resolve(root, paths.CHECKPOINT_DIR, model=model_config.name, checkpoint_id=checkpoint_id)
+        all_clips = [c for uri in sorted(clips) for c in clips[uri]]
+        history: list[dict] = []
+        if run.pending(STAGE_TRAIN, [key]) or not (folder / tokens.WEIGHTS_FILE).exists():
+            history, params = train(all_clips, config, folder, {"checkpoint_id": checkpoint_id,
+                                                        "shards": [u for _, u, _, _ in known]})
+            stage = _stage(run, STAGE_TRAIN, key, len(all_clips), 1, t0, mh, checkpoint_id=checkpoint_id, steps=steps)
+            run.write(LineageBatch(stage_runs=[stage]).extend(tokens.checkpoint_lineage(
+                checkpoint_id, folder, root, [s for _, _, s, _ in known], history, stage.stage_run_id, mh,
+                {"preset": preset_name, "variant": model_config.variant, "steps": steps, "size": size,
+                 "params": params})))
+            print(f"trained {preset_name} for {steps} steps in {time.perf_counter() - t0:.1f}s: "
+                  f"loss {history[-1]['loss']:.4f}, train PSNR {history[-1]['psnr']:.2f} dB")
+
+        written = []
+        for index, (path, uri, shard_id, shard_mh) in enumerate(known):
+            t0 = time.perf_counter()
+            target, rel = tokens.token_shard_path(root, checkpoint_id, index)
+            ekey = stable_id(STAGE_ENCODE, checkpoint_id, shard_id, str(max_encode_frames), str(index))
+            if not run.pending(STAGE_ENCODE, [ekey]) and target.exists():
+                continue
+            digest, nbytes, n, score = encode_shard(folder, clips[uri], target, max_encode_frames)
+            stage = _stage(run, STAGE_ENCODE, ekey, len(clips[uri]), n, t0, shard_mh or mh, source=uri)
+            run.write(LineageBatch(stage_runs=[stage]).extend(tokens.token_shard_lineage(
+                rel, digest, nbytes, n, checkpoint_id, shard_id, stage.stage_run_id, shard_mh or mh, score)))
+            written.append((rel, n, score))
+
+        rows = [(h["step"], f"{h['seconds']:.1f}", f"{h['loss']:.4f}", f"{h['psnr']:.2f}") for h in history]
+        body = (f"checkpoint `{checkpoint_id}` ({preset_name}, {model_config.variant}) under "
+                f"`{folder.relative_to(root).as_posix()}`\n\n"
+                + (markdown_table(("step", "seconds", "L1 loss", "train PSNR dB"), rows) if rows else "training skipped: done before")
+                + "\n\n" + markdown_table(("token shard", "clips", "round-trip PSNR dB"),
+                                          [(r, n, "" if s is None else f"{s:.2f}") for r, n, s in written]))
+        publish_report("tokenize", f"{len(all_clips)} clips from {len(known)} shards, {len(written)} token shards",
+                       body, "tokenizer training and token shards")
+        summary = {"run_id": run.run_id, "checkpoint_id": checkpoint_id, "checkpoint": str(folder),
+                   "clips": len(all_clips), "trained": bool(history), "token_shards": [r for r, _, _ in written],
+                   "final_loss": history[-1]["loss"] if history else None,
+                   "final_psnr": history[-1]["psnr"] if history else None}
+    print(summary)
+    return summary

@@ -1,0 +1,81 @@
+"""The tokenize flow on shards the real curate flow made from a simulator episode."""
+
+import pyarrow.parquet as pq
+import pytest
+from typer.testing import CliRunner
+
+from flows.cli import app
+from flows.curate import curate
+from flows.tokenize import tokenize
+from schemas.settings import Settings
+from tasks.manifests import load
+from tasks.mp4 import write_mp4
+from tasks.sim.episode import rollout
+from tests.support import MANIFESTS, lineage_problems
+from warehouse import audit
+from warehouse.store import Warehouse
+
+MANIFEST = MANIFESTS / "conveyor_push.yaml"
+
+
+@pytest.fixture(scope="module")
+def inbox(tmp_path_factory):
+    """One 4 s simulator episode (one shot, 128 x 128), and a curate config that tags overlay
+    text instead of rejecting (this test is about tokenizing, not about the text filter)."""
+    folder = tmp_path_factory.mktemp("inbox")
+    scenario = load(MANIFEST).model_copy(update={"horizon_s": 4.0})
+    write_mp4(folder / "episode.mp4", rollout(scenario, 1).frames["overhead"], 30)
+    config = tmp_path_factory.mktemp("config") / "curate.yaml"
+    config.write_text("overlay_text: {action: tag}\n")
+    return folder, config
+
+
+def test_tokenize_trains_encodes_and_records_lineage(prefect_harness, data_root, inbox):
+    folder, config = inbox
+    curated = curate([str(folder)], str(MANIFEST), str(config))
+    assert curated["clips"] >= 1 and curated["shards"]
+    mh = curated["manifest_hash"]
+
+    result = tokenize(mh, "tiny-dv4x8x8", steps=3, size=32, batch_size=2)
+    assert result["trained"] and len(result["token_shards"]) == len(curated["shards"])
+    folder = data_root / result["checkpoint"]
+    assert (folder / "model.safetensors").is_file() and (folder / "config.json").is_file()
+    assert list((folder / "tensorboard").glob("events.out.tfevents.*"))
+
+    rows = pq.read_table(data_root / result["token_shards"][0]).to_pylist()
+    assert len(rows) >= 1 and rows[0]["grid"][1:] == [4, 4]
+    assert all(0 <= c < 1000 for r in rows for c in r["codes"])
+
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, ckpt = wh.query("SELECT artifact_id, uri, manifest_hash FROM artifacts WHERE kind = 'checkpoint'")
+        _, trained_on = wh.query("SELECT e.parent_id FROM edges e JOIN artifacts a ON a.artifact_id = e.parent_id "
+                                 "WHERE e.relation = 'trained_on' AND a.kind = 'shard'")
+        _, shard_ids = wh.query("SELECT artifact_id FROM artifacts WHERE kind = 'shard'")
+        _, token_edges = wh.query("SELECT e.relation, p.kind FROM edges e JOIN artifacts t ON t.artifact_id = e.child_id "
+                                  "JOIN artifacts p ON p.artifact_id = e.parent_id WHERE t.kind = 'token_shard' ORDER BY 1")
+        _, metrics = wh.query("SELECT name, count(*) FROM metrics WHERE subject_id IN "
+                              "(SELECT artifact_id FROM artifacts WHERE kind IN ('checkpoint', 'token_shard')) GROUP BY 1 ORDER BY 1")
+        _, token_id = wh.query("SELECT artifact_id FROM artifacts WHERE kind = 'token_shard' LIMIT 1")
+        sql, _ = audit.bind("ancestry", {"artifact": "x"})
+        _, ancestry = wh.query(sql, {"artifact": token_id[0][0]})
+        _, runs = wh.query("SELECT status FROM runs WHERE flow = 'tokenize'")
+    assert len(ckpt) == 1 and ckpt[0][0] == result["checkpoint_id"] and ckpt[0][2] == mh
+    assert sorted(p for (p,) in trained_on) == sorted(s for (s,) in shard_ids)
+    assert token_edges == sorted([("encoded_by", "checkpoint"), ("tokens_of", "shard")] * len(curated["shards"]))
+    assert dict(metrics) == {"psnr": len(curated["shards"]), "train_loss": 1, "train_psnr": 1}  # logged at the last step
+    assert {r[1] for r in ancestry} >= {"checkpoint", "shard", "clip", "raw_video", "manifest"}
+    assert runs == [("completed",)]
+    assert lineage_problems(Settings().warehouse_path) == {}
+
+    again = tokenize(mh, "tiny-dv4x8x8", steps=3, size=32, batch_size=2)
+    assert again["checkpoint_id"] == result["checkpoint_id"] and not again["trained"] and again["token_shards"] == []
+
+
+def test_cli_refuses_bad_tokenize_arguments(tmp_path):
+    runner = CliRunner()
+    bad = runner.invoke(app, ["tokenize", str(tmp_path), "--preset", "huge"])
+    assert bad.exit_code == 2 and "unknown tokenizer preset" in bad.output
+    empty = runner.invoke(app, ["tokenize", str(tmp_path)])
+    assert empty.exit_code == 2 and "no shard files" in empty.output
+    odd = runner.invoke(app, ["tokenize", str(tmp_path), "--size", "36"])
+    assert odd.exit_code == 2 and "spatial compression" in odd.output
