@@ -24,11 +24,14 @@ from tasks.curate.config import CurateConfig, load_config
 from tasks.curate.decode import DecodeError
 from tasks.curate.encode import encode_clips
 from tasks.curate.inputs import Input, damage, decode_reason, discover
+from tasks.guard import clip as face_guard
+from tasks.guard.lineage import face_decisions
 
 load_manifest = task(manifests.load, name="load-manifest")
 analyse_video = task(analyse.analyse_video, name="analyse-video", retries=0)
 encode_video = task(encode_clips, name="encode-clips", retries=1)
 write_shards = task(shards.write_shards, name="write-shards", retries=1)
+guard_clips = task(face_guard.guard_clips, name="guard-faces", retries=1)
 
 
 def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: float, **attrs) -> StageRunRecord:
@@ -125,26 +128,33 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
             out.extend(_with_file(c, t, root) for c, t in zip(group, targets))
             continue
         spans = [(c.start_frame, c.end_frame) for c in group]
-        futures.append((key, group, targets, time.perf_counter(), encode_video.submit(source, spans, targets, config.encode)))
+        encoded = encode_video.submit(source, spans, targets, config.encode)
+        guarded = guard_clips.submit(targets, config.guard, config.encode, wait_for=[encoded])
+        futures.append((key, group, targets, time.perf_counter(), guarded))
     with progress(len(futures), "encode kept clips") as bar:
         for key, group, targets, t0, future in futures:
             try:
-                future.result()
+                faces = future.result()
             except Exception as exc:
                 run.fail_input(f"{group[0].source_uri}: encoding failed: {exc}")
                 continue
             finally:
                 bar.advance()
-            encoded = [_with_file(c, t, root) for c, t in zip(group, targets)]
-            stage = _stage(run, "encode", key, len(group), len(encoded), t0, source=group[0].source_uri)
-            run.write(LineageBatch(stage_runs=[stage]).extend(lineage.clips(encoded, stage.stage_run_id)))
+            encoded = [_with_file(c, t, root, found) for c, t, found in zip(group, targets, faces)]
+            stage = _stage(run, "encode", key, len(group), len(encoded), t0, source=group[0].source_uri,
+                           faces_hidden=sum(len(found) for found in faces))
+            batch = LineageBatch(stage_runs=[stage]).extend(lineage.clips(encoded, stage.stage_run_id))
+            for clip, found in zip(encoded, faces):  # every guard decision is a row (issue 10)
+                batch.extend(face_decisions(clip.clip_id, found, stage.stage_run_id, run.manifest_hash))
+            run.write(batch)
             out.extend(encoded)
     return out
 
 
-def _with_file(clip: ClipRecord, target: Path, root: Path) -> ClipRecord:
+def _with_file(clip: ClipRecord, target: Path, root: Path, faces=()) -> ClipRecord:
+    tags = (*clip.tags, "guard:faces_hidden") if faces else clip.tags
     return clip.model_copy(update={"uri": str(target.relative_to(root)), "sha256": sha256_file(str(target)),
-                                   "bytes": target.stat().st_size})
+                                   "bytes": target.stat().st_size, "tags": tags})
 
 
 def publish(run: RunContext, counts: Counter, n_shards: int, inputs: int) -> str:

@@ -24,6 +24,7 @@ from tasks.curate.config import CurateConfig
 from tasks.curate.decode import DecodeError, DecodeReport, probe
 from tasks.curate.filters import run_filters
 from tasks.curate.scenes import scenes_of
+from tasks.guard.text import scan_text
 
 
 @dataclass
@@ -81,8 +82,14 @@ def analyse_video(path: Path, sha256: str, config: CurateConfig = CurateConfig()
         if verdict.keep:
             signature = dedup.signature(span.frames, config.dedup)
             result.signatures[clip.clip_id] = signature
-            clip = clip.model_copy(update={"phash": signature.phash,
-                                           "caption": captioner.caption(span.frames, clip, context)})
+            caption = captioner.caption(span.frames, clip, context)
+            clip = clip.model_copy(update={"phash": signature.phash, "caption": caption})
+            if blocked := scan_text(caption, config.guard):  # the pre-guard on what a captioner wrote
+                del result.signatures[clip.clip_id]
+                clip = clip.model_copy(update={
+                    "kept": False, "reject_stage": "guard_text", "reject_reason": "blocked_term",
+                    "scores": {**clip.scores, "guard_text_matches": float(len(blocked))},
+                    "tags": (*clip.tags, *(f"blocked:{m.term}" for m in blocked))})
         result.clips.append(clip)
     if report.frames == 0:
         raise DecodeError(f"{path}: no decodable frames ({'; '.join(report.problems) or 'empty stream'})")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -73,3 +74,33 @@ def guard_clip(path_in: Path | str, path_out: Path | str, config: GuardConfig = 
     height, width = shape[0][:2]
     return GuardedClip(path_out, sha256_file(str(path_out)), path_out.stat().st_size, len(shape), width, height,
                        tuple(decisions))
+
+
+def find_faces(path: Path | str, config: GuardConfig = GuardConfig()) -> tuple[FaceDecision, ...]:
+    """Every face decision the guard would take on ``path``, without writing anything."""
+    decisions: list[FaceDecision] = []
+    for _, made in guard_stream(_display_frames(Path(path)), config):
+        decisions.extend(made)
+    return tuple(decisions)
+
+
+def guard_clips(paths: list[Path | str], config: GuardConfig = GuardConfig(),
+                encode: EncodeConfig = EncodeConfig()) -> list[tuple[FaceDecision, ...]]:
+    """The post-guard over encoded clips, in place: a clip with a face is re-encoded with every
+    face hidden (temporary file, then rename); a clip without one is left byte for byte.
+
+    Searching costs a decode (cheap) plus detection (what the guard costs anyway); only clips
+    with faces pay a second encode. Returns each clip's decisions, in the order of ``paths``.
+    """
+    out = []
+    for path in map(Path, paths):
+        decisions = find_faces(path, config) if config.enabled else ()
+        if decisions:
+            tmp = path.with_name(f".{path.name}.guard.tmp.mp4")
+            try:
+                decisions = guard_clip(path, tmp, config, encode).decisions
+                os.replace(tmp, path)
+            finally:
+                tmp.unlink(missing_ok=True)
+        out.append(decisions)
+    return out

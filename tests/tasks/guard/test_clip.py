@@ -46,3 +46,22 @@ def test_guard_clip_hides_the_face(face_clip, tmp_path):
 def test_guard_off_copies_the_file(face_clip, tmp_path):
     out = guard_clip(face_clip, tmp_path / "copy.mp4", GuardConfig(enabled=False))
     assert out.path.read_bytes() == face_clip.read_bytes() and out.decisions == ()
+
+
+def test_guard_clips_in_place_rewrites_only_clips_with_faces(face_clip, tmp_path):
+    import hashlib
+    import shutil
+
+    from tasks.guard.clip import find_faces, guard_clips
+
+    faces.cv2.setNumThreads(1)
+    with_face = shutil.copy(face_clip, tmp_path / "with_face.mp4")
+    rng = np.random.default_rng(0)
+    plain = write_mp4(tmp_path / "plain.mp4", rng.integers(0, 255, (6, 64, 64, 3), dtype=np.uint8), fps=10)
+    before = hashlib.sha256(plain.read_bytes()).hexdigest()
+    config = GuardConfig(detect_every=5)
+    found, none = guard_clips([with_face, plain], config)
+    assert len({d.frame for d in found}) >= 6 and none == ()
+    assert hashlib.sha256(plain.read_bytes()).hexdigest() == before  # no face: not re-encoded
+    assert find_faces(with_face, GuardConfig()) == ()  # the face is gone, searched on every frame
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["plain.mp4", "with_face.mp4"]  # no temporary left
