@@ -11,6 +11,7 @@ from flows.curate import curate
 from flows.register import register
 from flows.report import markdown_table, publish
 from flows.simulate import simulate
+from flows.tokenize import tokenize
 from schemas import paths
 from schemas.settings import Settings
 
@@ -21,8 +22,9 @@ DEMO = {"conveyor_push.yaml": 3, "bin_pick_dim_forklift.yaml": 2}
 
 @flow(name="demo", log_prints=True)
 def demo() -> list[dict]:
-    """Register every manifest, simulate episodes and curate them per manifest, then generate a
-    labelled minute of raw footage (simulator and procedural, with defects) and curate it."""
+    """Register every manifest, simulate episodes and curate them per manifest, train a tiny
+    tokenizer on the push episodes' shards, then generate a labelled minute of raw footage
+    (simulator and procedural, with defects) and curate it."""
     for path in sorted(MANIFESTS.glob("*.yaml")):
         register(str(path))
     results = []
@@ -31,6 +33,10 @@ def demo() -> list[dict]:
         digest = simulate(manifest, episodes=episodes)["manifest_hash"]
         folder = paths.resolve(Settings().data_root, paths.EPISODES_OF_MANIFEST, manifest_hash=digest)
         results.append(curate([str(folder)], manifest))
+    # A tiny tokenizer on the push episodes' shards: the next step of the loop, in seconds.
+    pushed = results[0]
+    if pushed["shards"]:
+        tokenize(pushed["manifest_hash"], preset_name="tiny-dv4x8x8", steps=30, size=64)
     footage = corpus(minutes=1.0, seed=1, width=640, height=360)
     results.append(curate(footage["videos"]))
     publish("demo", f"{len(results)} curate runs", markdown_table(
