@@ -18,8 +18,14 @@ content:
 A band must also look like a row of glyphs rather than part of the scene: wider than tall
 (``band_aspect``, relaxed to ``corner_aspect`` in the corners where logos sit), densely
 filled, with upright strokes (``upright_min``: a lit rail or kerb is all horizontal edge),
-and not embedded in other steady strokes (``ring_strokes_max``: in a locked-off street
-scene every fence bar is steady; an overlay stands alone).
+not embedded in other steady strokes (``ring_strokes_max``: in a locked-off street
+scene every fence bar is steady; an overlay stands alone, though the other line of a
+two-line subtitle does not count against it), and crossing several separate
+strokes along some pixel row (``glyph_runs_min``: a streak of floor texture is one run).
+
+Strokes are sought in luma and, with ``chroma_text``, in chroma (max minus min channel), where
+coloured glyphs without a rim (a yellow clock over a pale sky) stand out although their luma
+matches the ground.
 
 Windows in which nothing moves are skipped (a frozen shot gives no averaging cue), and
 drawn content (slides, test patterns, cartoons, as the video-type filter classifies them)
@@ -58,6 +64,9 @@ class OverlayTextConfig(FilterConfig):
     stroke_sigmas: float = 6.0  # ... and at least this many noise sigmas of the averaged frame
     gap_px: int = 3  # glyph gaps closed along a row
     ring_strokes_max: float = 0.05  # steady strokes around a band: it is part of a still scene
+    # A row of glyphs crosses several separate strokes along some pixel row; a lone streak of
+    # floor texture (a MuJoCo checker or speckle) is one run however text-like its box.
+    glyph_runs_min: int = 3
     upright_min: float = 0.3  # |d/dx| over |d/dy| inside a band: glyphs have upright strokes, a rail has none
     band_max_height: float = 0.1  # of the picture height
     band_aspect: float = 3.0  # width / height of a text row
@@ -68,6 +77,9 @@ class OverlayTextConfig(FilterConfig):
     stable_frac: float = 0.4
     stable_margin: float = 0.2
     text_area_min: float = 0.001
+    # Coloured glyphs without a rim (a yellow clock over sky or concrete) have almost the luma of
+    # their ground; in chroma (max - min channel) they still stand out as thin bright strokes.
+    chroma_text: bool = True
     skip_drawn: bool = True  # leave text on slides and test patterns to the video-type filter
 
 
@@ -131,11 +143,38 @@ def _ring_mean(mask: np.ndarray, box: tuple[int, int, int, int]) -> float:
     return float((mask[y0:y1, x0:x1].sum() - mask[y:y + bh, x:x + bw].sum()) / n) if n > 0 else 0.0
 
 
-def window_mask(greys: np.ndarray, config: OverlayTextConfig) -> np.ndarray | None:
-    """h x w bool screen area of stable text bands in W x h x w uint8 grey frames; None when
-    the picture does not move (nothing to average away)."""
+def chroma_frames(frames: np.ndarray) -> np.ndarray:
+    """N x h x w uint8 chroma (max minus min channel) of N x h x w x 3 uint8 RGB frames."""
+    r, g, b = frames[..., 0], frames[..., 1], frames[..., 2]  # channel-wise: a reduce over axis 3 is slow
+    return np.maximum(np.maximum(r, g), b) - np.minimum(np.minimum(r, g), b)
+
+
+def glyph_runs(strokes: np.ndarray, box: tuple[int, int, int, int]) -> int:
+    """Most separate stroke runs along any pixel row of an (x, y, w, h) box of a bool map."""
+    x, y, bw, bh = box
+    sub = strokes[y:y + bh, x:x + bw].astype(np.int8)
+    return int(((np.diff(sub, axis=1) == 1).sum(axis=1) + sub[:, 0]).max())
+
+
+def _without_stacked(mask: np.ndarray, box: tuple[int, int, int, int], rows: list) -> np.ndarray:
+    """A bool mask with the other glyph rows stacked above or below an (x, y, w, h) box cleared:
+    the second line of a two-line subtitle is not scene around the first."""
+    x, y, bw, bh = box
+    out = mask
+    for ox, oy, ow, oh in rows:
+        overlap = min(x + bw, ox + ow) - max(x, ox)
+        if (ox, oy) != (x, y) and overlap >= 0.5 * min(bw, ow) and abs(oy - y) <= 2.5 * max(bh, oh):
+            out = out.copy() if out is mask else out
+            out[oy:oy + oh, ox:ox + ow] = False
+    return out
+
+
+def window_mask(greys: np.ndarray, config: OverlayTextConfig, check_still: bool = True) -> np.ndarray | None:
+    """h x w bool screen area of stable text bands in W x h x w uint8 grey (or chroma) frames;
+    None when the picture does not move (nothing to average away). ``check_still=False`` skips
+    that test, for a chroma window whose grey twin was already found moving."""
     span = greys.max(axis=0).astype(np.int16) - greys.min(axis=0)
-    if (span > config.still_change).mean() < 0.002:
+    if check_still and (span > config.still_change).mean() < 0.002:
         return None
     mean = np.clip(greys.mean(axis=0, dtype=np.float32) + 0.5, 0, 255).astype(np.uint8)
     strokes = stroke_map(mean, config)
@@ -144,10 +183,12 @@ def window_mask(greys: np.ndarray, config: OverlayTextConfig) -> np.ndarray | No
     gx = np.abs(cv2.Sobel(mf, cv2.CV_32F, 1, 0))
     gy = np.abs(cv2.Sobel(mf, cv2.CV_32F, 0, 1))
     mask = np.zeros(mean.shape, bool)
-    for x, y, bw, bh in bands(strokes, config):
-        if gx[y:y + bh, x:x + bw].sum() < config.upright_min * gy[y:y + bh, x:x + bw].sum():
-            continue
-        if _ring_mean(strokes & stable, (x, y, bw, bh)) > config.ring_strokes_max:
+    rows = [(x, y, bw, bh) for x, y, bw, bh in bands(strokes, config)
+            if glyph_runs(strokes, (x, y, bw, bh)) >= config.glyph_runs_min
+            and gx[y:y + bh, x:x + bw].sum() >= config.upright_min * gy[y:y + bh, x:x + bw].sum()]
+    steady = strokes & stable
+    for x, y, bw, bh in rows:
+        if _ring_mean(_without_stacked(steady, (x, y, bw, bh), rows), (x, y, bw, bh)) > config.ring_strokes_max:
             continue
         inside = stable[y:y + bh, x:x + bw][strokes[y:y + bh, x:x + bw]].mean()
         if inside >= config.stable_frac or inside - _ring_mean(stable, (x, y, bw, bh)) >= config.stable_margin:
@@ -171,8 +212,11 @@ def judge(frames: np.ndarray, times: np.ndarray, config: OverlayTextConfig) -> V
     for start in sample_indices(max(1, last_start + 1), config.n_windows):
         stop = int(np.searchsorted(times, times[start] + span, side="right"))
         idx = start + sample_indices(max(2, stop - start), config.window_frames)
-        greys = np.stack([cv2.cvtColor(frames[i], cv2.COLOR_RGB2GRAY) for i in idx if i < len(frames)])
-        mask = window_mask(greys, config)
+        picked = frames[idx[idx < len(frames)]]
+        mask = window_mask(np.stack([cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in picked]), config)
+        if mask is not None and config.chroma_text:
+            chroma = window_mask(chroma_frames(picked), config, check_still=False)
+            mask = mask | chroma if chroma is not None else mask
         if mask is not None:
             masks.append(mask)
     if masks:

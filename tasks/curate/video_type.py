@@ -7,6 +7,8 @@ edges. Measured on ``n_samples`` frames inside the letterbox:
 
 - ``flat``: fraction of pixels whose 5x5 neighbourhood spans at most ``flat_range`` grey
   levels in every channel (a fill; codec ringing is smoothed away first);
+- ``crisp``: of the pixels that are not flat, the fraction whose neighbourhood spans more
+  than ``crisp_range`` levels (a fill boundary; a dark shot is flat but its edges are soft);
 - ``colours``: how many 4-bit-per-channel colours cover 95 % of the contrast-stretched
   picture (``filters.palette_size``);
 - ``axis_edges``: share of long-edge pixels (Canny components spanning 15 % of the short
@@ -57,6 +59,13 @@ class VideoTypeConfig(FilterConfig):
     # below footage's (a frozen camera shot keeps its shading: dozens of colours, little flat).
     page_colours: float = 20.0
     page_flat: float = 0.6  # slides measured 0.67-0.74; a flat-shaded sim render (aloha) 0.56
+    # A moving cartoon with shaded or anti-aliased fills has a dozen colours or more, but it is
+    # still mostly flat and its non-flat pixels are hard fill boundaries. Underexposed footage is
+    # as flat with as few colours, but its edges are soft (crisp 0.0 against 0.34-0.46).
+    crisp_range: int = 40
+    cartoon_colours: float = 20.0
+    cartoon_flat: float = 0.78
+    cartoon_crisp: float = 0.25
     # Screen captures are not in the corpus; this rule is deliberately strict (a still
     # warehouse aisle render has axis edges 0.72 and lines 0.42).
     screen_axis: float = 0.85
@@ -64,12 +73,13 @@ class VideoTypeConfig(FilterConfig):
     screen_still: float = 0.95
 
 
-def frame_features(frame: np.ndarray, config: VideoTypeConfig) -> tuple[float, float, float, float, float]:
-    """(flat, colours, axis_edges, lines, saturated) of one h x w x 3 uint8 RGB frame."""
+def frame_features(frame: np.ndarray, config: VideoTypeConfig) -> tuple[float, ...]:
+    """(flat, colours, axis_edges, lines, saturated, crisp) of one h x w x 3 uint8 RGB frame."""
     soft = cv2.GaussianBlur(frame, (3, 3), 0)
     k = np.ones((5, 5), np.uint8)
     span = (cv2.dilate(soft, k).astype(np.int16) - cv2.erode(soft, k)).max(axis=2)
     flat = float((span <= config.flat_range).mean())
+    crisp = float((span > config.crisp_range).mean() / max(1.0 - flat, 1e-6))
     colours = palette_size(frame)
     grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
     g = grey.astype(np.float32)
@@ -93,7 +103,7 @@ def frame_features(frame: np.ndarray, config: VideoTypeConfig) -> tuple[float, f
     lines = (_top_share(ax.mean(axis=0)) * ax.sum() + _top_share(ay.mean(axis=1)) * ay.sum()) / (ax.sum() + ay.sum() + 1e-6)
     hsv = cv2.cvtColor(frame, cv2.COLOR_RGB2HSV)
     saturated = float(((hsv[..., 1] >= 160) & (hsv[..., 2] >= 100)).mean())
-    return flat, colours, axis_edges, float(lines), saturated
+    return flat, colours, axis_edges, float(lines), saturated, crisp
 
 
 def _top_share(profile: np.ndarray, share: float = 0.05) -> float:
@@ -114,7 +124,9 @@ def classify(scores: dict[str, float], config: VideoTypeConfig) -> str:
         return "test_pattern"
     page = (scores["colours"] <= config.page_colours and scores["flat"] >= config.page_flat
             and scores["change"] <= config.slides_change)
-    if scores["colours"] <= config.drawn_colours or page:
+    cartoon = (scores["colours"] <= config.cartoon_colours and scores["flat"] >= config.cartoon_flat
+               and scores["crisp"] >= config.cartoon_crisp)
+    if scores["colours"] <= config.drawn_colours or page or cartoon:
         return "slides" if scores["change"] <= config.slides_change else "animation"
     if (scores["axis_edges"] >= config.screen_axis and scores["lines"] >= config.screen_lines
             and scores["still"] >= config.screen_still):
@@ -134,7 +146,7 @@ def judge(frames: np.ndarray, times: np.ndarray, config: VideoTypeConfig) -> Ver
     grey = picked.max(axis=3).astype(np.int16)
     still = float(((grey.max(axis=0) - grey.min(axis=0)) <= 6).mean())
     change = float(np.median((np.abs(np.diff(grey, axis=0)) > 6).mean(axis=(1, 2))))
-    scores = dict(zip(("flat", "colours", "axis_edges", "lines", "saturated"), map(float, np.median(features, axis=0))))
+    scores = dict(zip(("flat", "colours", "axis_edges", "lines", "saturated", "crisp"), map(float, np.median(features, axis=0))))
     scores["still"] = still
     scores["change"] = change
     kind = classify(scores, config)

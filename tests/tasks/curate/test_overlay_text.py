@@ -7,7 +7,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from tasks.curate.overlay_text import OverlayTextConfig, judge
+from tasks.curate import overlay_text
+from tasks.curate.overlay_text import OverlayTextConfig, judge, window_mask
 
 H, W, FPS, T = 144, 256, 30.0, 90
 TIMES = np.arange(T) / FPS
@@ -84,3 +85,47 @@ def test_text_on_drawn_pages_is_left_to_the_video_type_filter():
     assert verdict.keep and "overlay:not_judged" in verdict.tags
     assert judge(frames, TIMES, OverlayTextConfig(enabled=False)).scores == {}
 
+
+
+def floor_streaks(n: int = 6) -> np.ndarray:
+    """n x 128 x 128 grey window of a fixed simulator floor: pairs of soft, overlapping bright
+    streaks (as MuJoCo's speckled floor texture renders) with a disk moving across it."""
+    big = np.full((512, 512), 94, np.uint8)
+    for x, y in ((150, 112), (380, 360), (200, 470)):
+        cv2.ellipse(big, (x, y), (20, 7), 0, 0, 360, 175, -1, cv2.LINE_AA)
+        cv2.ellipse(big, (x + 24, y + 6), (20, 7), 0, 0, 360, 175, -1, cv2.LINE_AA)
+    out = np.repeat(cv2.resize(big, (128, 128), interpolation=cv2.INTER_AREA)[None], n, axis=0)
+    for t in range(n):
+        cv2.circle(out[t], (40 + 6 * t, 80), 10, 200, -1)
+    return out
+
+
+def test_a_lone_streak_of_floor_texture_is_not_a_glyph_row():
+    # Steady, bright and band-shaped, but each pixel row crosses one or two strokes, not several.
+    window = floor_streaks()
+    assert not window_mask(window, OverlayTextConfig()).any()
+    assert window_mask(window, OverlayTextConfig(glyph_runs_min=0)).any()  # the rule is what rejects it
+
+
+def test_a_yellow_clock_without_a_rim_on_a_bright_grey_ground():
+    # Yellow glyphs have nearly the luma of a pale ground; their chroma still stands out.
+    rng = np.random.default_rng(0)
+    big = cv2.resize(rng.random((30, 90)).astype(np.float32), (W + 200, H), interpolation=cv2.INTER_CUBIC)
+    big = np.repeat(np.clip(big * 60 + 180, 0, 255).astype(np.uint8)[..., None], 3, axis=2)
+    frames = np.stack([big[:, int(i * 1.5):int(i * 1.5) + W] for i in range(T)])
+    assert judge(frames, TIMES, OverlayTextConfig()).keep  # the pale ground alone has no text
+    for t in range(T):
+        cv2.putText(frames[t], f"2024-05-01 12:00:{t // 30:02d}", (150, 14), FONT, 0.3, (235, 235, 40), 1, cv2.LINE_AA)
+    assert judge(frames, TIMES, OverlayTextConfig()).reason == "overlay_text"
+    assert judge(frames, TIMES, OverlayTextConfig(chroma_text=False)).keep  # the chroma pass is what finds it
+
+
+def test_the_second_line_of_a_two_line_subtitle_does_not_hide_the_first(monkeypatch):
+    # Each line's steady neighbour is the other line; it must not count as steady scene around it.
+    frames = scene(speed=0.5, seed=2)
+    for f in frames:
+        outlined(f, "we walked to the old harbour", (40, 118), 0.35)
+        outlined(f, "and the boats were gone", (50, 132), 0.35)
+    assert judge(frames, TIMES, OverlayTextConfig()).reason == "overlay_text"
+    monkeypatch.setattr(overlay_text, "_without_stacked", lambda mask, box, rows: mask)
+    assert judge(frames, TIMES, OverlayTextConfig()).keep  # the rule is what finds it

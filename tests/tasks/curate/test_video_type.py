@@ -92,7 +92,8 @@ def test_allow_and_block_lists():
 
 def test_classify_decision_list():
     cfg = VideoTypeConfig()
-    base = {"flat": 0.1, "colours": 120.0, "axis_edges": 0.25, "lines": 0.1, "saturated": 0.0, "still": 0.1, "change": 0.5}
+    base = {"flat": 0.1, "colours": 120.0, "axis_edges": 0.25, "lines": 0.1, "saturated": 0.0, "still": 0.1, "change": 0.5,
+            "crisp": 0.3}
     assert classify(base, cfg) == "physical"
     assert classify({**base, "colours": 3.0, "change": 0.0}, cfg) == "slides"
     assert classify({**base, "colours": 3.0, "change": 0.2}, cfg) == "animation"
@@ -124,8 +125,37 @@ def test_held_page_with_a_wider_palette_is_slides_but_frozen_footage_is_not():
     # Frozen camera footage: nothing changes either, but shading keeps its palette wide.
     frozen = np.repeat(footage()[:1], T, axis=0)
     assert judge(frozen, TIMES, cfg).keep
-    base = {"flat": 0.7, "colours": 18.0, "axis_edges": 0.3, "lines": 0.2, "saturated": 0.0, "still": 0.9, "change": 0.0}
+    base = {"flat": 0.7, "colours": 18.0, "axis_edges": 0.3, "lines": 0.2, "saturated": 0.0, "still": 0.9, "change": 0.0,
+            "crisp": 0.3}
     assert classify(base, cfg) == "slides"
     assert classify({**base, "colours": cfg.page_colours + 1}, cfg) == "physical"
     assert classify({**base, "flat": cfg.page_flat - 0.01}, cfg) == "physical"
     assert classify({**base, "change": 0.2}, cfg) == "physical"  # a moving dark scene of a few tones
+
+
+def shaded_cartoon() -> np.ndarray:
+    """Ten differently coloured discs sliding over a sky and a lawn: more colours than
+    drawn_colours, but flat fills bounded by hard edges."""
+    rng = np.random.default_rng(1)
+    colours = [tuple(int(c) for c in rng.integers(30, 240, 3)) for _ in range(10)]
+    frames = np.empty((T, H, W, 3), np.uint8)
+    for t in range(T):
+        frames[t] = (142, 202, 230)
+        frames[t, 100:] = (106, 153, 78)
+        for i, c in enumerate(colours):
+            cv2.circle(frames[t], ((20 + 47 * i + 2 * t * (1 if i % 2 else -1)) % W, 25 + (i * 37) % 100), 16, c, -1)
+    return frames
+
+
+def test_a_cartoon_with_a_dozen_colours_is_animation_but_a_dark_shot_is_not():
+    cfg = VideoTypeConfig()
+    frames = shaded_cartoon()
+    verdict = judge(frames, TIMES, cfg)
+    assert verdict.scores["type_colours"] > cfg.drawn_colours
+    assert verdict.reason == "non_physical:animation", verdict.scores
+    assert judge(frames, TIMES, cfg.model_copy(update={"cartoon_flat": 1.1})).keep  # the rule is what rejects it
+    # An underexposed moving shot is as flat with as few colours, but its edges are soft.
+    dark = {"flat": 0.9, "colours": 17.0, "axis_edges": 0.3, "lines": 0.2, "saturated": 0.0, "still": 0.3,
+            "change": 0.2, "crisp": 0.0}
+    assert classify(dark, cfg) == "physical"
+    assert classify({**dark, "crisp": 0.4}, cfg) == "animation"
