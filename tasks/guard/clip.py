@@ -14,7 +14,7 @@ from schemas.hashing import sha256_file
 from tasks.curate.decode import open_video, probe
 from tasks.curate.encode import EncodeConfig, output_size
 from tasks.guard.config import GuardConfig
-from tasks.guard.faces import FaceDecision, guard_stream
+from tasks.guard.faces import FaceDecision, guard_stream, hide
 from tasks.mp4 import write_mp4
 
 
@@ -48,11 +48,13 @@ def _display_frames(path: Path) -> Iterator[np.ndarray]:
 
 
 def guard_clip(path_in: Path | str, path_out: Path | str, config: GuardConfig = GuardConfig(),
-               encode: EncodeConfig = EncodeConfig()) -> GuardedClip:
+               encode: EncodeConfig = EncodeConfig(),
+               decisions_found: tuple[FaceDecision, ...] | None = None) -> GuardedClip:
     """Write ``path_in`` to ``path_out`` as H.264 (``encode``'s preset and crf, x264 as in
     ``tasks/mp4.py``: same input, same bytes) with every face hidden. With the guard off the
     file is copied unchanged. The output has the input's average frame rate (a variable-rate
-    input comes out constant-rate) and no audio."""
+    input comes out constant-rate) and no audio. ``decisions_found`` (what ``find_faces``
+    returned for this file) hides those boxes without searching again."""
     path_in, path_out = Path(path_in), Path(path_out)
     if not config.enabled:
         path_out.parent.mkdir(parents=True, exist_ok=True)
@@ -64,8 +66,19 @@ def guard_clip(path_in: Path | str, path_out: Path | str, config: GuardConfig = 
     decisions: list[FaceDecision] = []
     shape: list[tuple[int, ...]] = []
 
+    def stream() -> Iterator[tuple[np.ndarray, list[FaceDecision]]]:
+        if decisions_found is None:
+            yield from guard_stream(_display_frames(path_in), config)
+            return
+        by_frame: dict[int, list[FaceDecision]] = {}
+        for d in decisions_found:
+            by_frame.setdefault(d.frame, []).append(d)
+        for i, image in enumerate(_display_frames(path_in)):
+            made = by_frame.get(i, [])
+            yield (hide(image, [d.box for d in made], config) if made else image), made
+
     def frames() -> Iterator[np.ndarray]:
-        for image, made in guard_stream(_display_frames(path_in), config):
+        for image, made in stream():
             decisions.extend(made)
             shape.append(image.shape)
             yield image
@@ -98,7 +111,8 @@ def guard_clips(paths: list[Path | str], config: GuardConfig = GuardConfig(),
         if decisions:
             tmp = path.with_name(f".{path.name}.guard.tmp.mp4")
             try:
-                decisions = guard_clip(path, tmp, config, encode).decisions
+                # The boxes just found are hidden as they are: detection, the costly part, runs once.
+                decisions = guard_clip(path, tmp, config, encode, decisions_found=decisions).decisions
                 os.replace(tmp, path)
             finally:
                 tmp.unlink(missing_ok=True)
