@@ -1,0 +1,75 @@
+"""World model checkpoints (safetensors + config JSON, as tasks/tokenize/tokens.py writes them) and their lineage.
+
+``config.json`` holds ``{"world_model": WorldModelConfig, **extra}`` (the flow adds the train
+config, the phase, the checkpoint id and the tokenizer it reads); the safetensors metadata
+holds the model config too, so the weights file alone is enough to rebuild the model.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+from safetensors.torch import load_file, save_file
+
+from models.world_model import WorldModel, WorldModelConfig
+from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord
+
+WEIGHTS_FILE, CONFIG_FILE = "model.safetensors", "config.json"
+METRICS = ("loss", "accuracy")  # history fields recorded as train_<name> per logged step
+
+
+def save_checkpoint(model: WorldModel, folder: Path, extra: dict | None = None) -> tuple[Path, Path]:
+    """Weights as safetensors and ``{"world_model": config, **extra}`` as JSON, each written atomically."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    weights, config = folder / WEIGHTS_FILE, folder / CONFIG_FILE
+    tmp = folder / f".{WEIGHTS_FILE}.{os.getpid()}.tmp"
+    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp),
+              metadata={"world_model": model.config.model_dump_json()})
+    os.replace(tmp, weights)
+    body = {"world_model": model.config.model_dump(mode="json"), **(extra or {})}
+    tmp = folder / f".{CONFIG_FILE}.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps(body, indent=2, sort_keys=True))
+    os.replace(tmp, config)
+    return weights, config
+
+
+def read_config(folder: Path) -> dict:
+    return json.loads((Path(folder) / CONFIG_FILE).read_text())
+
+
+def load_checkpoint(folder: Path) -> WorldModel:
+    """The model a checkpoint folder holds (with its action encoder when post-trained), in eval mode."""
+    config = WorldModelConfig.model_validate(read_config(folder)["world_model"])
+    model = WorldModel(config)
+    model.load_state_dict(load_file(str(Path(folder) / WEIGHTS_FILE)))
+    return model.eval()
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def checkpoint_lineage(checkpoint_id: str, folder: Path, root: Path, parents: Sequence[tuple[str, str]],
+                       history: Sequence[dict], stage_run_id: str, manifest_hash: str | None,
+                       attrs: dict) -> LineageBatch:
+    """The checkpoint artifact (its weights file; ``attrs`` plus the config uri), an edge from
+    every (parent id, relation) in ``parents``, and train_loss / train_accuracy per logged step."""
+    weights = Path(folder) / WEIGHTS_FILE
+    batch = LineageBatch(artifacts=[ArtifactRecord(
+        artifact_id=checkpoint_id, kind="checkpoint", uri=weights.relative_to(root).as_posix(),
+        sha256=_sha256(weights), bytes=weights.stat().st_size, manifest_hash=manifest_hash,
+        stage_run_id=stage_run_id,
+        attrs={**attrs, "config_uri": (Path(folder) / CONFIG_FILE).relative_to(root).as_posix()},
+    )])
+    batch.edges.extend(EdgeRecord(parent_id=p, child_id=checkpoint_id, relation=r) for p, r in dict.fromkeys(parents))
+    for record in history:
+        for name in METRICS:
+            batch.metrics.append(MetricRecord(subject_id=checkpoint_id, name=f"train_{name}", step=record["step"],
+                                              value=record[name], stage_run_id=stage_run_id,
+                                              manifest_hash=manifest_hash))
+    return batch

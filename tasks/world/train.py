@@ -1,0 +1,147 @@
+"""Train the world model: pre-training on token sequences with text, post-training on episodes with actions.
+
+Pure: ``CodeSequence``s in, a trained model and its history out; no files, no Prefect. Random
+windows of ``max_frames`` latent frames, next-frame cross-entropy, AdamW, linear warm-up then
+a cosine on progress = max(step / steps, training seconds / budget) (as tasks/tokenize/train.py
+does, so a wall-clock budget and a step count both end the cosine at its floor).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from models.world_model import WorldModel, next_frame_loss, post_trainable
+from tasks.world.data import CodeSequence
+
+
+class WorldTrainConfig(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    preset: str = "tiny-wm"
+    steps: int = Field(200, ge=1)
+    seconds: float | None = Field(None, gt=0, description="training-time budget; stops at steps or this")
+    batch_size: int = Field(8, ge=1)
+    lr: float = Field(1e-3, gt=0)
+    warmup_steps: int = Field(20, ge=0)
+    min_lr_ratio: float = Field(0.1, ge=0, le=1)
+    weight_decay: float = Field(0.01, ge=0)
+    text_dropout: float = Field(0.1, ge=0, le=1, description="share of windows trained without their text")
+    seed: int = 0
+    threads: int = Field(2, ge=1)
+    log_every: int = Field(10, ge=1)
+
+
+def window_length(sequences: Sequence[CodeSequence], max_frames: int) -> int:
+    """Frames per training window: ``max_frames``, or the longest sequence when all are shorter."""
+    longest = max((s.frames for s in sequences), default=0)
+    if longest < 2:
+        raise ValueError("no sequence has 2 latent frames: nothing to predict")
+    return min(max_frames, longest)
+
+
+def sample_windows(sequences: Sequence[CodeSequence], frames: int, batch: int, gen: torch.Generator,
+                   with_actions: bool = False, text_dropout: float = 0.0
+                   ) -> tuple[torch.Tensor, list[str], torch.Tensor | None]:
+    """``batch`` random windows of ``frames`` latent frames (from sequences at least that long):
+    codes ``B x frames x H' x W'`` int64, texts (dropped to "" with probability ``text_dropout``),
+    and actions ``B x (frames - 1) x F`` float32 (the rows between the window's frames) or None."""
+    usable = [s for s in sequences if s.frames >= frames]
+    if not usable:
+        raise ValueError(f"no sequence has {frames} latent frames")
+    grids = {s.codes.shape[1:] for s in usable}
+    if len(grids) > 1:
+        raise ValueError(f"sequences have different latent grids {sorted(grids)}; train on one tokenizer size")
+    codes, texts, actions = [], [], []
+    for _ in range(batch):
+        seq = usable[int(torch.randint(len(usable), (1,), generator=gen))]
+        t0 = int(torch.randint(seq.frames - frames + 1, (1,), generator=gen))
+        codes.append(seq.codes[t0:t0 + frames])
+        drop = text_dropout > 0 and float(torch.rand((), generator=gen)) < text_dropout
+        texts.append("" if drop else seq.text)
+        if with_actions:
+            if seq.actions is None:
+                raise ValueError(f"{seq.key}: no actions to condition on")
+            actions.append(seq.actions[t0:t0 + frames - 1])
+    acts = torch.from_numpy(np.stack(actions)) if with_actions else None
+    return torch.from_numpy(np.stack(codes)).long(), texts, acts
+
+
+def lr_at(config: WorldTrainConfig, step: int, progress: float) -> float:
+    if step < config.warmup_steps:
+        return config.lr * (step + 1) / config.warmup_steps
+    floor = config.lr * config.min_lr_ratio
+    return floor + (config.lr - floor) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
+
+
+def _optimizer(model: WorldModel, config: WorldTrainConfig) -> torch.optim.Optimizer:
+    # Weight decay on matrices only, not on biases, norms or the learned position vectors (nanoGPT).
+    params = [p for p in model.parameters() if p.requires_grad]
+    decay = [p for p in params if p.dim() >= 2]
+    rest = [p for p in params if p.dim() < 2]
+    return torch.optim.AdamW([{"params": decay, "weight_decay": config.weight_decay},
+                              {"params": rest, "weight_decay": 0.0}], lr=config.lr, betas=(0.9, 0.95))
+
+
+def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], config: WorldTrainConfig,
+                      on_log: Callable[[dict], None] | None = None) -> list[dict]:
+    """Train in place; one record per ``log_every`` steps (and the last): step, seconds, loss
+    (nats per token), accuracy (argmax next-frame tokens right), copy_accuracy (what repeating
+    the current frame would score), lr. An action-conditioned model trains on the sequences'
+    actions. Same seed, sequences and config: same weights (single-threaded)."""
+    torch.set_num_threads(config.threads)
+    gen = torch.Generator().manual_seed(config.seed)
+    frames = window_length(sequences, model.config.max_frames)
+    with_actions = model.config.action_conditioned
+    opt = _optimizer(model, config)
+    history: list[dict] = []
+    trained, pending = 0.0, []
+    model.train()
+    for step in range(config.steps):
+        if config.seconds and trained >= config.seconds:
+            break
+        started = time.perf_counter()
+        progress = max(step / config.steps, trained / config.seconds if config.seconds else 0.0)
+        for group in opt.param_groups:
+            group["lr"] = lr_at(config, step, progress)
+        codes, texts, actions = sample_windows(sequences, frames, config.batch_size, gen, with_actions,
+                                               config.text_dropout)
+        logits = model(codes, texts, actions)
+        loss = next_frame_loss(logits, codes)
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+        with torch.no_grad():
+            target = codes[:, 1:]
+            accuracy = (logits[:, :-1].argmax(-1) == target).float().mean().item()
+            copy = (codes[:, :-1] == target).float().mean().item()
+        pending.append((loss.item(), accuracy, copy))
+        trained += time.perf_counter() - started
+        last = step + 1 == config.steps or bool(config.seconds and trained >= config.seconds)
+        if (step + 1) % config.log_every == 0 or last:
+            mean = np.mean(pending, axis=0)
+            record = {"step": step + 1, "seconds": round(trained, 2), "loss": float(mean[0]),
+                      "accuracy": float(mean[1]), "copy_accuracy": float(mean[2]), "lr": opt.param_groups[0]["lr"]}
+            pending = []
+            history.append(record)
+            if on_log:
+                model.eval()
+                on_log(record)
+                model.train()
+    model.eval()
+    return history
+
+
+def posttrain(pretrained: WorldModel, episodes: Sequence[CodeSequence], config: WorldTrainConfig,
+              on_log: Callable[[dict], None] | None = None) -> tuple[WorldModel, list[dict]]:
+    """A copy of the pre-trained model with a zero-initialised action encoder (so it starts out
+    computing exactly what the pre-trained model does), trained on episodes with their actions."""
+    torch.manual_seed(config.seed)
+    model = post_trainable(pretrained)
+    return model, train_world_model(model, episodes, config, on_log)

@@ -1,0 +1,89 @@
+"""The train flow end to end: simulate -> curate -> tokenize -> pre-train on tokens -> post-train on episodes."""
+
+from pathlib import Path
+
+from typer.testing import CliRunner
+
+from flows.cli import app
+from flows.curate import curate
+from flows.simulate import simulate
+from flows.tokenize import tokenize
+from flows.train import train
+from models.world_model import WorldModel
+from schemas.settings import Settings
+from tasks.world import checkpoints
+from tests.support import MANIFESTS, lineage_problems
+from warehouse import audit
+from warehouse.store import Warehouse
+
+runner = CliRunner()
+
+
+def _small_manifest(tmp_path: Path) -> Path:
+    """conveyor_push at 64 x 64 for 3 s: long enough for a 2 s curated scene."""
+    text = (MANIFESTS / "conveyor_push.yaml").read_text()
+    path = tmp_path / "small.yaml"
+    path.write_text(text.replace("horizon_s: 5.0", "horizon_s: 3.0").replace("[128, 128]", "[64, 64]"))
+    return path
+
+
+def test_train_pretrains_posttrains_records_lineage_and_skips_on_rerun(prefect_harness, data_root, tmp_path):
+    manifest = _small_manifest(tmp_path)
+    mh = simulate(str(manifest), 2)["manifest_hash"]
+    config = tmp_path / "curate.yaml"
+    config.write_text("overlay_text: {action: tag}\n")
+    curated = curate([str(data_root / "episodes")], str(manifest), str(config))
+    assert curated["clips"] >= 1
+    tok = tokenize(mh, "tiny-dv4x8x8", steps=2, size=32, batch_size=2)
+
+    result = train(str(manifest), pretrain_steps=3, posttrain_steps=3)
+    assert result["pretrained"] and result["posttrained"] and result["tokenizer_id"] == tok["checkpoint_id"]
+    assert result["episodes"] == 2 and result["episode_videos"] == 2 and result["sequences"] == curated["clips"]
+    for phase in ("pretrain", "posttrain"):
+        folder = Path(result[f"{phase}_checkpoint"])
+        assert (folder / "model.safetensors").is_file() and list((folder / "tensorboard").glob("events.out.tfevents.*"))
+        model = checkpoints.load_checkpoint(folder)
+        assert isinstance(model, WorldModel) and model.config.action_conditioned == (phase == "posttrain")
+        assert model.config.codebook_size == 1000 and (model.config.max_height, model.config.max_width) == (4, 4)
+        assert checkpoints.read_config(folder)["phase"] == phase
+    assert list((data_root / "cache" / "episode_codes").rglob("*.npz"))
+
+    pre, post = result["pretrain_checkpoint_id"], result["posttrain_checkpoint_id"]
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, ckpts = wh.query("SELECT artifact_id, attrs->>'phase', manifest_hash FROM artifacts WHERE kind = 'checkpoint' "
+                            "AND attrs->>'model' = 'world_model' ORDER BY 2")
+        _, edges = wh.query("SELECT e.child_id, e.relation, p.kind, count(*) FROM edges e "
+                            "JOIN artifacts p ON p.artifact_id = e.parent_id WHERE e.child_id IN ($pre, $post) "
+                            "GROUP BY ALL ORDER BY 1, 2, 3", {"pre": pre, "post": post})
+        _, n_tokens = wh.query("SELECT count(*) FROM artifacts WHERE kind = 'token_shard'")
+        _, metrics = wh.query("SELECT subject_id, name, step FROM metrics WHERE subject_id IN ($pre, $post) ORDER BY 1, 2",
+                              {"pre": pre, "post": post})
+        _, stages = wh.query("SELECT stage, count(*) FROM stage_runs WHERE stage LIKE '%world_model' GROUP BY 1 ORDER BY 1")
+        sql, _ = audit.bind("ancestry", {"artifact": "x"})
+        _, ancestry = wh.query(sql, {"artifact": post})
+    assert [(i, p) for i, p, _ in ckpts] == [(post, "posttrain"), (pre, "pretrain")] and ckpts[0][2] == mh
+    tokens = n_tokens[0][0]
+    assert sorted((c == post, rel, kind, n) for c, rel, kind, n in edges) == sorted([
+        (False, "trained_on", "checkpoint", 1), (False, "trained_on", "token_shard", tokens),
+        (True, "posttrained_from", "checkpoint", 1), (True, "trained_on", "checkpoint", 1),
+        (True, "trained_on", "episode", 2)])
+    assert sorted(metrics) == sorted((c, f"train_{m}", 3) for c in (pre, post) for m in ("accuracy", "loss"))
+    assert stages == [("posttrain_world_model", 1), ("pretrain_world_model", 1)]
+    assert {r[1] for r in ancestry} >= {"checkpoint", "episode", "token_shard", "shard", "clip", "manifest"}
+    assert lineage_problems(Settings().warehouse_path) == {}
+
+    again = runner.invoke(app, ["train", str(manifest), "--steps", "3", "--post-steps", "3"])
+    assert again.exit_code == 0, again.output
+    assert f"pre-trained {pre} (already trained), post-trained {post} (already trained)" in " ".join(again.output.split())
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, runs = wh.query("SELECT status FROM runs WHERE flow = 'train'")
+    assert runs == [("completed",), ("completed",)]
+
+
+def test_cli_refuses_bad_train_arguments(data_root, tmp_path):
+    bad = runner.invoke(app, ["train", str(MANIFESTS / "conveyor_push.yaml"), "--preset", "huge"])
+    assert bad.exit_code == 2 and "unknown world model preset" in bad.output
+    none = runner.invoke(app, ["train", str(MANIFESTS / "conveyor_push.yaml")])
+    assert none.exit_code == 2 and "no simulated episodes" in none.output
+    missing = runner.invoke(app, ["train", str(tmp_path / "nothing.yaml")])
+    assert missing.exit_code == 2

@@ -1,0 +1,91 @@
+"""World model training loops, windows and checkpoints, without Prefect."""
+
+import numpy as np
+import pytest
+import torch
+
+from models.world_model import WorldModel, next_frame_loss, preset
+from tasks.world import checkpoints
+from tasks.world.data import CodeSequence
+from tasks.world.train import WorldTrainConfig, posttrain, sample_windows, train_world_model, window_length
+
+K = 32
+
+
+def _sequences(n=3, frames=6, with_actions=False):
+    """Sequences whose frame j is frame 0 shifted by j codes: the next frame is predictable."""
+    rng = np.random.default_rng(0)
+    out = []
+    for i in range(n):
+        first = rng.integers(0, K, (4, 4))
+        codes = np.stack([(first + j) % K for j in range(frames)]).astype(np.int64)
+        actions = np.arange((frames - 1) * 32, dtype=np.float32).reshape(frames - 1, 32) if with_actions else None
+        out.append(CodeSequence(key=f"s{i}", codes=codes, text=f"clip {i}", actions=actions))
+    return out
+
+
+def _model(seed=0):
+    torch.manual_seed(seed)
+    return WorldModel(preset("tiny-wm", codebook_size=K, max_height=4, max_width=4, max_frames=4))
+
+
+def test_windows_and_their_action_rows():
+    seqs = _sequences(2, 6, with_actions=True)
+    assert window_length(seqs, 4) == 4 and window_length(seqs, 16) == 6
+    codes, texts, actions = sample_windows(seqs, 4, 5, torch.Generator().manual_seed(0), True)
+    assert codes.shape == (5, 4, 4, 4) and codes.dtype == torch.int64 and actions.shape == (5, 3, 32)
+    for b in range(5):
+        seq = next(s for s in seqs if s.text == texts[b])
+        t0 = int(np.flatnonzero([(seq.codes[t:t + 4] == codes[b].numpy()).all() for t in range(3)])[0])
+        assert np.array_equal(actions[b].numpy(), seq.actions[t0:t0 + 3])
+    _, dropped, none = sample_windows(seqs, 4, 50, torch.Generator().manual_seed(0), text_dropout=0.5)
+    assert none is None and 10 < dropped.count("") < 40
+    with pytest.raises(ValueError, match="2 latent frames"):
+        window_length([CodeSequence("one", np.zeros((1, 4, 4), np.int64), "")], 4)
+    with pytest.raises(ValueError, match="no actions"):
+        sample_windows(_sequences(1), 4, 1, torch.Generator(), True)
+
+
+def test_training_is_seeded_and_learns():
+    config = WorldTrainConfig(steps=40, batch_size=4, lr=3e-3, warmup_steps=5, threads=1, log_every=10)
+    a, b = _model(), _model()
+    history = train_world_model(a, _sequences(), config)
+    train_world_model(b, _sequences(), config)
+    assert all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), b.state_dict().values()))
+    assert [h["step"] for h in history] == [10, 20, 30, 40]
+    assert history[-1]["loss"] < 0.5 * np.log(K) and history[-1]["accuracy"] > history[0]["accuracy"]
+    assert history[-1]["copy_accuracy"] == 0.0  # every frame differs from the last: copying never works
+    budget = train_world_model(_model(), _sequences(), config.model_copy(update={"seconds": 1e-6}))
+    assert [h["step"] for h in budget] == [1]  # a budget ends training (and is logged)
+
+
+def test_posttraining_starts_from_the_pretrained_model_and_round_trips(tmp_path):
+    config = WorldTrainConfig(steps=3, batch_size=2, threads=1, log_every=1)
+    pre = _model()
+    train_world_model(pre, _sequences(), config)
+    episodes = _sequences(2, with_actions=True)
+    codes = torch.from_numpy(episodes[0].codes[:4])[None]
+    acts = torch.from_numpy(episodes[0].actions[:3])[None]
+    with torch.no_grad():
+        before = next_frame_loss(pre(codes, ["clip 0"]), codes).item()
+    post, history = posttrain(pre, episodes, config.model_copy(update={"steps": 1, "lr": 1e-12, "warmup_steps": 0}))
+    with torch.no_grad():
+        after = next_frame_loss(post(codes, ["clip 0"], acts), codes).item()
+    assert post.config.action_conditioned and pre.action_encoder is None and len(history) == 1
+    assert abs(after - before) < 1e-4  # a step at a negligible rate: still the pre-trained model
+
+    for model in (pre, post):
+        folder = tmp_path / model.config.name / str(model.config.action_conditioned)
+        weights, config_file = checkpoints.save_checkpoint(model, folder, {"phase": "x"})
+        loaded = checkpoints.load_checkpoint(folder)
+        assert loaded.config == model.config and checkpoints.read_config(folder)["phase"] == "x"
+        args = (codes, ["clip 0"], acts if model.config.action_conditioned else None)
+        with torch.no_grad():
+            assert torch.equal(loaded(*args), model(*args))
+    batch = checkpoints.checkpoint_lineage("ckpt", folder, tmp_path, [("ep", "trained_on"), ("pre", "posttrained_from"),
+                                                                      ("ep", "trained_on")],
+                                           history, "sr", None, {"model": "world_model", "phase": "posttrain"})
+    assert batch.artifacts[0].uri == f"{post.config.name}/True/model.safetensors"
+    assert batch.artifacts[0].attrs["config_uri"].endswith("config.json")
+    assert [(e.parent_id, e.relation) for e in batch.edges] == [("ep", "trained_on"), ("pre", "posttrained_from")]
+    assert sorted(m.name for m in batch.metrics) == ["train_accuracy", "train_loss"]
