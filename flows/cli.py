@@ -295,22 +295,174 @@ def tokenize(
               f"from {result['clips']} clips", highlight=False)
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-def train() -> None:
-    """Pre-train and post-train world models (not built yet)."""
-    _not_built("train", 8)
+@app.command()
+def train(
+    manifest: str = typer.Argument(..., help="manifest YAML whose simulated episodes post-train the model "
+                                             "(or an episode folder, or a manifest hash)"),
+    tokenizer: Optional[str] = typer.Option(None, help="tokenizer checkpoint folder or id; default the newest "
+                                                       "discrete one with token shards"),
+    tokens: Optional[str] = typer.Option(None, help="token shard folder; default the tokenizer's token shards"),
+    preset: str = typer.Option("tiny-wm", help="world model preset (models/world_model.py PRESETS)"),
+    steps: int = typer.Option(200, min=1, max=1_000_000, help="pre-training steps"),
+    post_steps: int = typer.Option(100, min=1, max=1_000_000, help="post-training steps"),
+    camera: Optional[str] = typer.Option(None, help="post-train on this camera only (default: every camera)"),
+) -> None:
+    """Pre-train a world model on token shards, post-train it with actions on episodes (Prefect flow `train`)."""
+    from models.world_model import PRESETS
+
+    if preset not in PRESETS:
+        _fail(f"--preset: unknown world model preset {preset!r}; known: {', '.join(sorted(PRESETS))}")
+    if Path(manifest).suffix in (".yaml", ".yml"):
+        _load_or_exit(Path(manifest))
+    from flows.train import episode_folders
+    from flows.train import train as train_flow
+
+    try:
+        episode_folders(manifest, Settings().data_root.resolve())
+        result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, camera=camera)
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc))
+    done = {True: "trained", False: "already trained"}
+    out.print(f"pre-trained {result['pretrain_checkpoint_id']} ({done[result['pretrained']]}), post-trained "
+              f"{result['posttrain_checkpoint_id']} ({done[result['posttrained']]}) on {result['episodes']} episodes",
+              highlight=False)
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-def panels() -> None:
-    """Generate matched scenario panels (not built yet)."""
-    _not_built("panels", 9)
+@app.command()
+def panels(
+    manifest: Path,
+    grid: Optional[Path] = typer.Option(None, help="stressor grid YAML (schemas/panel.py StressorGrid); "
+                                                   "default: nominal, clean, then one stressor at a time"),
+    episodes: Optional[int] = typer.Option(None, min=1, max=1000, help="seeds per cell (default: the grid's)"),
+    world_model: Optional[Path] = typer.Option(None, help="world-model checkpoint for side-by-side rollouts"),
+    camera: Optional[str] = typer.Option(None, help="camera shown (default: the first world-mounted one)"),
+    guard: bool = typer.Option(True, "--guard/--no-guard", help="text pre-guard and face post-guard"),
+) -> None:
+    """A matched panel: variants differing only in stressors, simulated, contact sheet + MP4 (Prefect flow `panels`)."""
+    parent = _load_or_exit(manifest)
+    _grid_or_exit(parent, grid, episodes)
+    from flows.panels import panels as panels_flow
+
+    try:
+        result = panels_flow(str(manifest), str(grid) if grid else None, episodes,
+                             str(world_model) if world_model else None, camera, guard)
+    except ValueError as exc:
+        _fail(str(exc))
+    cells = ", ".join(f"{v['cell']} {sum(e['success'] for e in v['episodes'])}/{len(v['episodes'])}"
+                      for v in result["variants"])
+    out.print(f"panel {result['panel_id']}: {cells}; sheet {result['contact_sheet']}, video {result['video']}",
+              highlight=False)
 
 
-@app.command(context_settings={"allow_extra_args": True, "ignore_unknown_options": True})
-def evaluate() -> None:
-    """Evaluate policies on panels (not built yet)."""
-    _not_built("evaluate", 9)
+def _grid_or_exit(parent, grid: Optional[Path], episodes: Optional[int]):
+    from tasks.panels.grid import GridError, expand
+    from flows.panels import resolve_grid
+
+    try:
+        return expand(parent, resolve_grid(parent, str(grid) if grid else None, episodes))
+    except GridError as exc:
+        _fail(str(exc))
+
+
+def evaluate_policies_cmd(
+    manifest: Path,
+    policy: Optional[list[str]] = typer.Option(None, help="scripted | scripted:NOISE | bc:CHECKPOINT_FOLDER "
+                                                           "(repeat; default: scripted and scripted:0.8)"),
+    grid: Optional[Path] = typer.Option(None, help="stressor grid YAML (default: one stressor at a time)"),
+    episodes: Optional[int] = typer.Option(None, min=1, max=1000, help="seeds per cell (default: the grid's)"),
+    compare: Optional[list[Path]] = typer.Option(None, help="another manifest whose panel is evaluated too "
+                                                            "(its contract must match; repeat)"),
+    world_model: Optional[Path] = typer.Option(None, help="world-model checkpoint: verdicts on generated frames"),
+    detector: bool = typer.Option(True, "--detector/--no-detector", help="also judge the simulator's renders "
+                                                                         "with the frame detector"),
+) -> None:
+    """Policies on a panel: simulator and frame-detector success per stressor cell, their rank
+    correlation (Prefect flow `evaluate`); exit 2 when panel contracts differ."""
+    parent = _load_or_exit(manifest)
+    for other in compare or []:
+        _load_or_exit(other)
+    _grid_or_exit(parent, grid, episodes)
+    from tasks.panels.contract import PanelContractError
+    from tasks.policy.specs import PolicySpecError, load_policy
+
+    try:
+        for name in policy or []:
+            load_policy(name)
+    except PolicySpecError as exc:
+        _fail(str(exc))
+    from flows.evaluate import evaluate as evaluate_flow
+
+    try:
+        result = evaluate_flow(str(manifest), str(grid) if grid else None, episodes, policy or None,
+                               [str(p) for p in compare or []], str(world_model) if world_model else None, detector)
+    except PanelContractError as exc:
+        _fail(str(exc))
+    rows = [(e["panel"], e["policy"], r["cell"], r["episodes"], *("-" if r[k] is None else f"{r[k]:.2f}"
+                                                                  for k in ("sim", "detector", "world")))
+            for e in result["evaluations"] for r in e["table"]]
+    _print_rows(["panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model"], rows, "table",
+                title="success rate per stressor cell")
+    out.print("Spearman (simulator vs): " + ", ".join(f"{k} {'-' if v is None else f'{v:.2f}'}"
+                                                       for k, v in result["spearman"].items()), highlight=False)
+
+
+@app.command("train-policy")
+def train_policy_cmd(
+    manifest: Path,
+    episodes: int = typer.Option(30, min=1, max=10_000, help="scripted demonstrations (seeds seed+1000...)"),
+    steps: int = typer.Option(3000, min=1, max=1_000_000, help="training steps"),
+    preset: str = typer.Option("tiny", help="policy network preset (models/bc_policy.py PRESETS)"),
+    holdout: int = typer.Option(10, min=0, max=10_000, help="held-out seeds to measure success on (seed+2000...)"),
+) -> None:
+    """Behaviour-clone the scripted controller into a small MLP policy (Prefect flow `train-policy`)."""
+    from models.bc_policy import PRESETS
+
+    scenario = _load_or_exit(manifest)
+    if preset not in PRESETS:
+        _fail(f"--preset: unknown policy preset {preset!r}; known: {', '.join(sorted(PRESETS))}")
+    if scenario.embodiment.kind != "arm":
+        _fail(f"{manifest}: behaviour cloning drives arms; this manifest's embodiment is {scenario.embodiment.kind!r}")
+    from flows.policy import train_policy as train_flow
+
+    result = train_flow(str(manifest), episodes, steps, preset, 0, holdout)
+    rate = result["held_out_success_rate"]
+    out.print(f"checkpoint {result['folder']}" + ("" if rate is None else f"; held-out success {rate:.2f}"),
+              highlight=False)
+
+
+evaluate_app = typer.Typer(no_args_is_help=True, help="Evaluate world models against the simulator, and policies.")
+app.add_typer(evaluate_app, name="evaluate")
+
+
+@evaluate_app.command("physics")
+def evaluate_physics_cmd(
+    manifest: Path,
+    world_model: Optional[str] = typer.Option(None, help="post-trained world-model checkpoint folder or id "
+                                                         "(default: the newest post-trained one in lineage)"),
+    tokenizer: Optional[Path] = typer.Option(None, help="its tokenizer's checkpoint folder (default: the one it was "
+                                                        "trained with)"),
+    episodes: int = typer.Option(10, min=1, max=1000, help="held-out episodes"),
+    first_seed: int = typer.Option(10_000, min=0, help="seeds first_seed.. (never those the model trained on)"),
+    camera: Optional[str] = typer.Option(None, help="world-mounted camera (default: the first)"),
+    horizon: int = typer.Option(4, min=1, max=64, help="latent frames predicted per window"),
+) -> None:
+    """A world model against MuJoCo on held-out seeds: per-horizon PSNR, SSIM, package position
+    error and IoU beside copy-last-frame and the tokenizer's reconstruction, true against
+    shuffled actions (Prefect flow `evaluate-physics`)."""
+    _load_or_exit(manifest)
+    from flows.physics import evaluate_physics
+
+    try:
+        result = evaluate_physics(str(manifest), world_model, str(tokenizer) if tokenizer else None, episodes,
+                                  first_seed, camera, horizon)
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc))
+    checks = ", ".join(f"{k} {'passed' if v else 'failed'}" for k, v in result["checks"].items())
+    out.print(f"evaluation {result['evaluation_id']} ({result['windows']} windows, {result['moving']} with the "
+              f"package moving): {checks}; table and plots under {result['folder']}", highlight=False)
+
+# `worldline evaluate policies` (flows/evaluate.py), defined above with the panels.
+evaluate_app.command("policies")(evaluate_policies_cmd)
 
 
 def main() -> None:

@@ -6,9 +6,12 @@ runs from a terminal, a rich progress bar on stderr.
 
 from __future__ import annotations
 
+import json
+import os
 import sys
 from collections.abc import Iterable, Sequence
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Iterator
 
 from prefect.artifacts import create_markdown_artifact, create_progress_artifact, update_progress_artifact
@@ -54,3 +57,11 @@ def progress(total: int, description: str) -> Iterator[Progress]:
     with Bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
              console=Console(stderr=True), transient=True) as bar:
         yield Progress(total, description, bar, bar.add_task(description, total=total))
+
+
+def write_json(path: Path, body: dict) -> None:
+    """Write ``body`` as sorted JSON, atomically (a temporary beside it, then a rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(body, indent=1, sort_keys=True))
+    os.replace(tmp, path)

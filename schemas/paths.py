@@ -26,6 +26,18 @@ SHARD_MAX_CLIPS = 1000
 CHECKPOINT_DIR = "checkpoints/{model}/{checkpoint_id}"
 TOKEN_SHARD_FILE = "tokens/{tokenizer_id:.12}/part-{index:05d}.parquet"
 
+PANEL_DIR = "panels/{panel_id}"
+PANEL_SPEC = PANEL_DIR + "/panel.json"
+PANEL_SHEET = PANEL_DIR + "/contact_sheet.png"
+PANEL_VIDEO = PANEL_DIR + "/panel.mp4"
+EVALUATION_FILE = "evaluations/{evaluation_id}/result.json"
+# The physics evaluation of a world model (flows/physics.py): its table, report and plots.
+PHYSICS_RESULT = "evaluations/{evaluation_id}/physics.json"
+PHYSICS_REPORT = "evaluations/{evaluation_id}/physics.md"
+PHYSICS_PLOT = "evaluations/{evaluation_id}/{plot}.png"
+# A camera video's tokenizer codes (a cache the train flow may delete and rebuild).
+EPISODE_CODES_FILE = "cache/episode_codes/{tokenizer_id:.12}/{video_sha256:.24}-{size}.npz"
+
 
 def resolve(root: Path, template: str, **fields) -> Path:
     return Path(root) / template.format(**fields)

@@ -47,9 +47,11 @@ class _NoAliasLoader(yaml.SafeLoader):
         return super().compose_node(parent, index)
 
 
-def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:
+def safe_mapping(text: str, where: str, what: str = "manifest", error: type[ValueError] = ManifestError) -> dict:
+    """The top-level mapping of a small YAML text: safe YAML only (no tags, no aliases, bounded
+    size and depth); ``error`` names ``where`` and the problem otherwise."""
     if len(text.encode("utf-8")) > MAX_BYTES:
-        raise ManifestError(f"{where}: larger than {MAX_BYTES} bytes")
+        raise error(f"{where}: larger than {MAX_BYTES} bytes")
     try:
         loader = _NoAliasLoader(text)
         try:
@@ -57,19 +59,24 @@ def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:
         finally:
             loader.dispose()
         if node is None:
-            raise ManifestError(f"{where}: empty manifest")
+            raise error(f"{where}: empty {what}")
         _check_shape(node, where)
         data = yaml.load(text, Loader=yaml.SafeLoader)  # safe: no object construction from tags
-    except ManifestError as exc:
+    except (ManifestError, error) as exc:
         msg = str(exc)
-        raise ManifestError(msg if msg.startswith(where) else f"{where}: {msg}") from None
+        raise error(msg if msg.startswith(where) else f"{where}: {msg}") from None
     except yaml.YAMLError as exc:
         problem = " ".join(str(exc).split())
-        raise ManifestError(f"{where}: not valid YAML: {problem}") from None
+        raise error(f"{where}: not valid YAML: {problem}") from None
     except RecursionError:
-        raise ManifestError(f"{where}: nested too deeply") from None
+        raise error(f"{where}: nested too deeply") from None
     if not isinstance(data, dict):
-        raise ManifestError(f"{where}: the top level must be a mapping, not {type(data).__name__}")
+        raise error(f"{where}: the top level must be a mapping, not {type(data).__name__}")
+    return data
+
+
+def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:
+    data = safe_mapping(text, where)
     try:
         manifest = ScenarioManifest.model_validate(data)
     except ValidationError as exc:
@@ -85,17 +92,21 @@ def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:
     return manifest
 
 
-def load(path: Path | str) -> ScenarioManifest:
-    path = Path(path)
+def read_text(path: Path, error: type[ValueError] = ManifestError) -> str:
+    """A small UTF-8 YAML file's text; ``error`` names the file and the problem otherwise."""
     try:
         if not path.is_file():
-            raise ManifestError(f"{path}: not a file")
+            raise error(f"{path}: not a file")
         if path.stat().st_size > MAX_BYTES:
-            raise ManifestError(f"{path}: larger than {MAX_BYTES} bytes")
-        text = path.read_text(encoding="utf-8")
+            raise error(f"{path}: larger than {MAX_BYTES} bytes")
+        return path.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:
-        raise ManifestError(f"{path}: cannot read: {exc}") from None
-    return parse_text(text, str(path))
+        raise error(f"{path}: cannot read: {exc}") from None
+
+
+def load(path: Path | str) -> ScenarioManifest:
+    path = Path(path)
+    return parse_text(read_text(path), str(path))
 
 
 def dump_yaml(manifest: ScenarioManifest) -> str:

@@ -46,12 +46,13 @@ class ArmController:
     moving; episodes use repeat=False and end holding the result.
     """
 
-    def __init__(self, scene: Scene, seed: int, repeat: bool = False):
+    def __init__(self, scene: Scene, seed: int, repeat: bool = False, noise: float | None = None):
         m, arm = scene.model, scene.arm
         self.scene, self.model, self.repeat = scene, m, repeat
         self.task = scene.manifest.task.kind
         self.space = scene.manifest.embodiment.action_space
-        self.noise = scene.manifest.task.controller_noise
+        # noise None: the manifest's controller_noise (a policy may run the same task noisier).
+        self.noise = scene.manifest.task.controller_noise if noise is None else noise
         self.rng = rng_for(seed, "controller")
         self.dt = 1.0 / scene.config.control_hz
         self.site = m.site("tcp").id
@@ -184,6 +185,12 @@ class ArmController:
         if self.noise and self.space != "joint_position":
             delta = delta + self.rng.normal(0.0, self.noise * NOISE_STEP, 3)
             dyaw += float(self.rng.normal(0.0, self.noise * NOISE_STEP * 5))
+        return self.apply(data, delta, dyaw, grip)
+
+    def apply(self, data: mujoco.MjData, delta: np.ndarray, dyaw: float, grip: float) -> np.ndarray:
+        """Move the commanded tcp pose by (delta, dyaw), set the grip, and write the joint
+        targets (differential IK); returns the action in this controller's action space.
+        A learned policy acts through this too (tasks/policy)."""
         self.target_pos = self.target_pos + delta
         self.target_yaw += dyaw
         self.grip = grip
@@ -211,10 +218,10 @@ class DriveController:
 
     VMAX, ACCEL = 1.5, 1.5  # m/s, m/s^2
 
-    def __init__(self, scene: Scene, seed: int, repeat: bool = False):
+    def __init__(self, scene: Scene, seed: int, repeat: bool = False, noise: float | None = None):
         m = scene.model
         self.scene, self.model, self.repeat = scene, m, repeat
-        self.noise = scene.manifest.task.controller_noise
+        self.noise = scene.manifest.task.controller_noise if noise is None else noise
         self.rng = rng_for(seed, "controller")
         self.dt = 1.0 / scene.config.control_hz
         self.qadr = m.jnt_qposadr[[m.joint(j).id for j in scene.base.joints]]
@@ -259,5 +266,8 @@ class DriveController:
         return 2
 
 
-def make_controller(scene: Scene, seed: int, repeat: bool = False) -> ArmController | DriveController:
-    return ArmController(scene, seed, repeat) if scene.arm is not None else DriveController(scene, seed, repeat)
+def make_controller(scene: Scene, seed: int, repeat: bool = False,
+                    noise: float | None = None) -> ArmController | DriveController:
+    """The scripted controller for the scene's embodiment; noise None is the manifest's."""
+    kind = ArmController if scene.arm is not None else DriveController
+    return kind(scene, seed, repeat, noise)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -21,6 +21,21 @@ from tasks.sim.files import EpisodeFiles, episode_lineage, write_episode  # noqa
 from tasks.sim.render import MultiCameraRenderer, jitter_angles
 from tasks.sim.scene import Scene, SimConfig, build_scene, rng_for
 from tasks.sim.stressors import FORKLIFT_LENGTH, FORKLIFT_PARK_Y, forklift_position
+
+
+class Controller(Protocol):
+    """What drives the robot: the scripted controllers (tasks.sim.control) or a policy's
+    (tasks.policy). `step` reads the state, writes `data.ctrl` and returns the action applied."""
+
+    def reset(self, data: mujoco.MjData) -> None: ...
+
+    def step(self, data: mujoco.MjData) -> np.ndarray: ...
+
+    def action_size(self) -> int: ...
+
+
+ControllerFactory = Callable[[Scene, int], Controller]
+"""(scene, seed) -> a controller for that scene; `Policy.controller` is one."""
 
 
 @dataclass(frozen=True)
@@ -62,9 +77,11 @@ class Simulation:
 
     cyclic_forklift makes the forklift come round again (for long footage): it reappears at
     its parking spot, out of view, once it has driven as far past the lane as it started.
+    controller: a factory used in place of the scripted controller (None: the scripted one).
     """
 
-    def __init__(self, scene: Scene, seed: int, repeat: bool = False, cyclic_forklift: bool = False):
+    def __init__(self, scene: Scene, seed: int, repeat: bool = False, cyclic_forklift: bool = False,
+                 controller: ControllerFactory | None = None):
         self.scene, self.model = scene, scene.model
         self.data = mujoco.MjData(self.model)
         self.data.qpos[:] = scene.initial_qpos
@@ -76,8 +93,11 @@ class Simulation:
             self.fork_q, self.fork_v = int(joint.qposadr[0]), int(joint.dofadr[0])
             self._drive_forklift()
         mujoco.mj_forward(self.model, self.data)
-        self.controller = make_controller(scene, seed, repeat)
+        self.controller = make_controller(scene, seed, repeat) if controller is None else controller(scene, seed)
         self.controller.reset(self.data)
+        # The base's planar joints, for judging reach_goal whatever controller drives it.
+        self.base_qadr = (self.model.jnt_qposadr[[self.model.joint(j).id for j in scene.base.joints]]
+                          if scene.base is not None else None)
         self.substeps = max(1, round(1.0 / (scene.config.control_hz * scene.config.timestep)))
         self.fork_body = self.model.body("forklift").id if self.fork else -1
         self.estop_reason: str | None = None
@@ -136,7 +156,7 @@ def _target_holds(sim: Simulation, rest_z: float) -> bool:
     scene, d, m = sim.scene, sim.data, sim.model
     ev = scene.manifest.evaluation
     if ev.target == "reach_goal":
-        return float(np.linalg.norm(d.qpos[sim.controller.qadr] - scene.goal[:2])) <= ev.goal_tolerance_m
+        return float(np.linalg.norm(d.qpos[sim.base_qadr] - scene.goal[:2])) <= ev.goal_tolerance_m
     body = m.body(scene.objects[0]).id
     pos = d.xpos[body]
     if ev.target == "push_to_goal":
@@ -162,10 +182,12 @@ def jitter_phases(scene: Scene) -> dict[str, np.ndarray]:
             for c in scene.manifest.cameras}
 
 
-def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig()) -> Episode:
-    """Simulate the manifest's task for horizon_s and render every camera at its own fps."""
+def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig(),
+            controller: ControllerFactory | None = None) -> Episode:
+    """Simulate the manifest's task for horizon_s and render every camera at its own fps.
+    controller: drive the robot with this instead of the scripted controller (a policy)."""
     scene = build_scene(manifest, seed, config)
-    sim = Simulation(scene, seed)
+    sim = Simulation(scene, seed, controller=controller)
     m, d = sim.model, sim.data
     steps = round(manifest.horizon_s * config.control_hz)
     # The robot's joints: every joint but the objects' free joints and the forklift's slide.
@@ -227,5 +249,5 @@ def _verdict(sim: Simulation, rest_z: float) -> tuple[bool, str]:
     if ev.target == "push_to_goal":
         gap = float(np.linalg.norm(d.xpos[m.body(scene.objects[0]).id][:2] - scene.goal[:2]))
         return False, f"package {gap:.3f} m from goal (tolerance {ev.goal_tolerance_m} m)"
-    gap = float(np.linalg.norm(d.qpos[sim.controller.qadr] - scene.goal[:2]))
+    gap = float(np.linalg.norm(d.qpos[sim.base_qadr] - scene.goal[:2]))
     return False, f"base {gap:.3f} m from goal (tolerance {ev.goal_tolerance_m} m)"

@@ -1,0 +1,96 @@
+"""train-policy: scripted demonstrations of a manifest -> a behaviour-cloning policy (safetensors
+checkpoint) -> its success on held-out seeds. Checkpoint, training loss and held-out success
+land in lineage; a finished training is skipped on a re-run.
+
+Seeds: demonstrations use seed+1000 .. seed+1000+episodes-1 and the held-out check seed+2000
+onwards, so neither overlaps the seeds panels use by default (seed, seed+1, ...)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from prefect import flow, task
+from prefect.cache_policies import NO_CACHE
+
+from flows.recording import recorded_run
+from flows.report import markdown_table, publish
+from schemas import paths
+from schemas.hashing import content_hash, sha256_file, stable_id
+from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord, StageRunRecord
+from schemas.settings import Settings
+from tasks import manifests
+from tasks.policy import bc
+from tasks.policy.features import FEATURES_VERSION
+
+STAGE = "train_policy"
+TRAIN_OFFSET, HOLDOUT_OFFSET = 1000, 2000
+
+load_manifest = task(manifests.load, name="load-manifest")
+collect = task(bc.collect, name="collect-demonstrations", retries=1, cache_policy=NO_CACHE)
+held_out = task(bc.success_rate, name="held-out-success", cache_policy=NO_CACHE)
+
+
+@task(name="train-bc", cache_policy=NO_CACHE)
+def train(demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path, scenario, extra: dict):
+    model, history = bc.train_bc(demos, config)
+    bc.save_checkpoint(model, folder, scenario, config, extra)
+    return model, history
+
+
+@flow(name="train-policy", log_prints=True)
+def train_policy(manifest: str, episodes: int = 30, steps: int = 3000, preset_name: str = "tiny", seed: int = 0,
+                 holdout: int = 10) -> dict:
+    """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations."""
+    settings = Settings()
+    root = settings.data_root.resolve()
+    scenario = load_manifest(Path(manifest))
+    bc.require_arm(scenario)
+    config = bc.TrainConfig(preset=preset_name, steps=steps, seed=seed)
+    train_seeds = list(range(scenario.seed + TRAIN_OFFSET, scenario.seed + TRAIN_OFFSET + episodes))
+    test_seeds = list(range(scenario.seed + HOLDOUT_OFFSET, scenario.seed + HOLDOUT_OFFSET + holdout))
+    with recorded_run("train-policy", settings, scenario, source_uri=manifest,
+                      params={"manifest": manifest, "episodes": episodes, "steps": steps, "preset": preset_name,
+                              "seed": seed, "holdout": holdout}) as run:
+        key = stable_id(STAGE, run.manifest_hash, content_hash(config), str(FEATURES_VERSION), *map(str, train_seeds))
+        checkpoint_id = stable_id("checkpoint", key)
+        folder = paths.resolve(root, paths.CHECKPOINT_DIR, model="bc-policy", checkpoint_id=checkpoint_id)
+        history, rate, outcomes = [], None, []
+        if run.pending(STAGE, [key]) or not (folder / bc.WEIGHTS_FILE).exists():
+            t0 = time.perf_counter()
+            demos = collect(scenario, train_seeds)
+            model, history = train(demos, config, folder, scenario,
+                                   {"checkpoint_id": checkpoint_id, "train_seeds": train_seeds,
+                                    "demonstrations": int(len(demos.obs)), "successes": sum(demos.successes)})
+            policy = bc.BCPolicy.from_checkpoint(folder)
+            rate, outcomes = held_out(scenario, policy, test_seeds) if test_seeds else (None, [])
+            stage = StageRunRecord(stage_run_id=run.stage_run_id(STAGE, key), run_id=run.run_id, stage=STAGE,
+                                   input_key=key, manifest_hash=run.manifest_hash, n_in=episodes, n_out=1,
+                                   seconds=round(time.perf_counter() - t0, 3),
+                                   attrs={"checkpoint_id": checkpoint_id, "steps": steps})
+            weights = folder / bc.WEIGHTS_FILE
+            attrs = {"model": "bc-policy", "preset": preset_name, "steps": steps, "train_seeds": train_seeds,
+                     "held_out_seeds": test_seeds, "held_out_success_rate": rate,
+                     "config": (folder / bc.CONFIG_FILE).relative_to(root).as_posix()}
+            batch = LineageBatch(
+                stage_runs=[stage],
+                artifacts=[ArtifactRecord(artifact_id=checkpoint_id, kind="checkpoint",
+                                          uri=weights.relative_to(root).as_posix(), sha256=sha256_file(str(weights)),
+                                          bytes=weights.stat().st_size, manifest_hash=run.manifest_hash,
+                                          stage_run_id=stage.stage_run_id, attrs=attrs)],
+                edges=[EdgeRecord(parent_id=run.manifest_hash, child_id=checkpoint_id, relation="trained_on")],
+                metrics=[MetricRecord(subject_id=checkpoint_id, name="train_loss", step=h["step"], value=h["loss"],
+                                      stage_run_id=stage.stage_run_id, manifest_hash=run.manifest_hash)
+                         for h in history])
+            if rate is not None:
+                batch.metrics.append(MetricRecord(subject_id=checkpoint_id, name="held_out_success_rate", value=rate,
+                                                  stage_run_id=stage.stage_run_id, manifest_hash=run.manifest_hash,
+                                                  attrs={"seeds": test_seeds}))
+            run.write(batch)
+        rows = [(s, "success" if ok else "failure", why) for s, ok, why in outcomes]
+        publish("train-policy", f"checkpoint {checkpoint_id}" + ("" if rate is None else f", held-out success {rate:.2f}"),
+                markdown_table(("held-out seed", "outcome", "reason"), rows), "behaviour-cloning policy and its held-out success")
+        print(f"checkpoint {checkpoint_id} under {folder}" + ("" if not history else
+              f": loss {history[0]['loss']:.4f} -> {history[-1]['loss']:.4f}, held-out success {rate}"))
+        return {"checkpoint_id": checkpoint_id, "folder": str(folder), "held_out_success_rate": rate,
+                "history": history, "held_out": outcomes, "manifest_hash": run.manifest_hash}

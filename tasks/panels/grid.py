@@ -1,0 +1,87 @@
+"""A manifest x a stressor grid -> the panel spec and one variant manifest per cell."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from pydantic import ValidationError
+
+from schemas.manifest import (CameraJitter, DimLight, Distractors, ForkliftCrossing, Occluder, ScenarioManifest,
+                              manifest_hash)
+from schemas.panel import PanelSpec, PanelVariant, StressorCell, StressorGrid, contract_hash, panel_contract
+from tasks.guard.text import GuardError, check_fields
+# The one safe YAML path (no aliases, bounded size and depth) that manifests are read with.
+from tasks.manifests import read_text, safe_mapping
+
+# A forklift lane that crosses each task's view without entering the workcell (x of the lane, m).
+FORKLIFT_LANE = {"bin_pick": -0.9, "push": 1.2, "drive": 3.0}
+
+
+class GridError(ValueError):
+    """An unusable grid: one line naming the file or cell and the problem."""
+
+
+def default_grid(parent: ScenarioManifest, episodes: int = 2) -> StressorGrid:
+    """Nominal (the parent as is), clean (no stressors), then one stressor at a time: dim light,
+    a forklift crossing, camera jitter, distractors and (arms) an occluder."""
+    kinds = tuple(sorted({s.kind for s in parent.stressors}))
+    cells = [StressorCell(name="nominal"), StressorCell(name="clean", drop=kinds),
+             StressorCell(name="dim", stressors=(DimLight(lux=80),)),
+             StressorCell(name="forklift", stressors=(ForkliftCrossing(speed_mps=1.5, lane_m=FORKLIFT_LANE[parent.task.kind],
+                                                                       start_s=min(1.0, parent.horizon_s / 4)),)),
+             StressorCell(name="jitter", stressors=(CameraJitter(amplitude_deg=2.0, frequency_hz=5.0),)),
+             StressorCell(name="distractors", stressors=(Distractors(count=10),))]
+    if parent.embodiment.kind == "arm":
+        cells.append(StressorCell(name="occluder", stressors=(Occluder(coverage=0.5),)))
+    return StressorGrid(name="default", description="one stressor at a time", cells=tuple(cells), episodes=episodes)
+
+
+def parse_grid(text: str, where: str = "<grid>") -> StressorGrid:
+    """A grid from YAML, read like a manifest (safe YAML only) and pre-guarded (its names)."""
+    data = safe_mapping(text, where, "grid", GridError)
+    try:
+        grid = StressorGrid.model_validate(data)
+    except ValidationError as exc:
+        problems = [f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors()]
+        raise GridError(f"{where}: {'; '.join(problems)}") from None
+    try:
+        check_fields(grid)
+    except GuardError as exc:
+        raise GridError(f"{where}: {exc}") from None
+    return grid
+
+
+def load_grid(path: Path | str) -> StressorGrid:
+    path = Path(path)
+    return parse_grid(read_text(path, GridError), str(path))
+
+
+def variant_manifest(parent: ScenarioManifest, grid: StressorGrid, cell: StressorCell) -> ScenarioManifest:
+    """The parent with the cell's stressors (and the grid's seed): everything else unchanged."""
+    replaced = {s.kind for s in cell.stressors} | set(cell.drop)
+    stressors = [s for s in parent.stressors if s.kind not in replaced] + list(cell.stressors)
+    body = parent.model_dump(mode="json")
+    body.update(name=f"{parent.name[:62 - len(cell.name)]}--{cell.name}",
+                description=f"panel variant {cell.name!r} ({grid.name}) of {parent.name}",
+                stressors=[s.model_dump(mode="json") for s in stressors],
+                seed=parent.seed if grid.seed is None else grid.seed, parent=manifest_hash(parent))
+    try:
+        return ScenarioManifest.model_validate(body)
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors())
+        raise GridError(f"cell {cell.name!r}: the variant is not a valid manifest: {problems}") from None
+
+
+def expand(parent: ScenarioManifest, grid: StressorGrid) -> tuple[PanelSpec, list[ScenarioManifest]]:
+    """The panel spec and its variant manifests, in the grid's cell order."""
+    variants = [variant_manifest(parent, grid, cell) for cell in grid.cells]
+    contract = panel_contract(parent)
+    for cell, variant in zip(grid.cells, variants):
+        # By construction; a schema change that let a stressor move the contract would break panels.
+        assert panel_contract(variant) == contract, f"cell {cell.name!r} changed the panel contract"
+    seeds = tuple(variants[0].seed + i for i in range(grid.episodes))
+    spec = PanelSpec(name=f"{parent.name}/{grid.name}", parent=manifest_hash(parent), contract=contract,
+                     contract_hash=contract_hash(contract), grid=grid,
+                     variants=tuple(PanelVariant(cell=c.name, manifest_hash=manifest_hash(v), seeds=seeds)
+                                    for c, v in zip(grid.cells, variants)))
+    return spec, variants

@@ -1,0 +1,268 @@
+"""Behaviour cloning from the scripted controller: collect, train, save, load, act.
+
+Demonstrations are scripted episodes rolled out through the policy seam with a recorder in
+the loop: at each control step, the features the scripted controller acts on
+(`tasks.policy.features`) and the move it then commands (change of the commanded tcp pose,
+yaw and grip, whatever the action space). The learned policy acts through the same
+`ArmController.apply`, so it commands the arm exactly as the scripted controller does.
+Checkpoints are safetensors plus a config JSON (`{"bc": BCConfig, "train": TrainConfig,
+"contract": PanelContract, ...}`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+from safetensors.torch import load_file, save_file
+from scipy import special
+
+import tasks.sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
+import mujoco
+from models.bc_policy import BCConfig, BCPolicyNet, preset
+from schemas.manifest import ScenarioManifest, manifest_hash
+from schemas.panel import PanelContract, contract_hash, panel_contract
+from tasks.policy.base import Policy
+from tasks.policy.features import FEATURES_VERSION, arm_features, obs_size
+from tasks.sim.control import MAX_STEP, MAX_YAW_STEP, ArmController, make_controller
+from tasks.sim.episode import rollout
+from tasks.sim.scene import Scene, SimConfig
+
+WEIGHTS_FILE, CONFIG_FILE = "model.safetensors", "config.json"
+
+
+class TrainConfig(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    preset: str = "tiny"
+    steps: int = Field(3000, ge=1, le=1_000_000)
+    batch_size: int = Field(256, ge=1, le=65536)
+    lr: float = Field(1e-3, gt=0, le=1)
+    seed: int = 0
+    threads: int = Field(1, ge=1, le=64)
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """obs N x obs_size float32, act N x 5 float32 [dx, dy, dz, dyaw, grip]; episode N (index
+    into seeds); the seeds rolled out and which of them the scripted controller solved."""
+
+    obs: np.ndarray
+    act: np.ndarray
+    episode: np.ndarray
+    seeds: tuple[int, ...]
+    successes: tuple[bool, ...]
+
+
+def require_arm(manifest: ScenarioManifest) -> None:
+    if manifest.embodiment.kind != "arm":
+        raise ValueError(f"manifest {manifest.name}: behaviour cloning drives arms; "
+                         f"embodiment {manifest.embodiment.kind!r} has no arm")
+
+
+def physics_only(manifest: ScenarioManifest) -> ScenarioManifest:
+    """The manifest with tiny, slow cameras: the same physics (cameras never touch it, and
+    the occluder is placed from the unchanged camera position) at a fraction of the render cost."""
+    cams = tuple(c.model_copy(update={"resolution": (16, 16), "fps": 1.0}) for c in manifest.cameras)
+    return manifest.model_copy(update={"cameras": cams})
+
+
+class _Recorder:
+    """The scripted controller, recording what it sees and the move it commands each step."""
+
+    def __init__(self, inner: ArmController):
+        self.inner, self.obs, self.act = inner, [], []
+
+    def reset(self, data: mujoco.MjData) -> None:
+        self.inner.reset(data)
+
+    def action_size(self) -> int:
+        return self.inner.action_size()
+
+    def step(self, data: mujoco.MjData) -> np.ndarray:
+        obs, pos, yaw = arm_features(data, self.inner), self.inner.target_pos.copy(), self.inner.target_yaw
+        action = self.inner.step(data)
+        self.obs.append(obs)
+        self.act.append([*(self.inner.target_pos - pos), self.inner.target_yaw - yaw, self.inner.grip])
+        return action
+
+
+def collect(manifest: ScenarioManifest, seeds: Sequence[int], noise: float | None = None,
+            successes_only: bool = True, config: SimConfig = SimConfig()) -> Demonstrations:
+    """Scripted episodes of ``seeds`` (physics only); failed ones are left out by default."""
+    require_arm(manifest)
+    fast = physics_only(manifest)
+    obs, act, index, outcomes = [], [], [], []
+    for k, seed in enumerate(seeds):
+        made: list[_Recorder] = []
+
+        def factory(scene: Scene, s: int) -> _Recorder:
+            made.append(_Recorder(make_controller(scene, s, noise=noise)))
+            return made[-1]
+
+        ep = rollout(fast, seed, config, controller=factory)
+        outcomes.append(bool(ep.success))
+        if ep.success or not successes_only:
+            rec = made[0]
+            obs += rec.obs
+            act += rec.act
+            index += [k] * len(rec.obs)
+    if not obs:
+        raise ValueError(f"manifest {manifest.name}: no successful demonstrations on seeds {list(seeds)}")
+    return Demonstrations(obs=np.asarray(obs, np.float32), act=np.asarray(act, np.float32),
+                          episode=np.asarray(index, np.int64), seeds=tuple(seeds), successes=tuple(outcomes))
+
+
+def train_bc(demos: Demonstrations, config: TrainConfig = TrainConfig(),
+             log: Callable[[dict], None] | None = None) -> tuple[BCPolicyNet, list[dict]]:
+    """Seeded: the same demonstrations and config give the same weights. MSE on standardised
+    actions; history rows every 1/20 of the run: step, loss, seconds."""
+    torch.manual_seed(config.seed)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(config.threads)
+    try:
+        obs, act = torch.from_numpy(demos.obs), torch.from_numpy(demos.act)
+        model = BCPolicyNet(preset(config.preset, obs.shape[1]))
+        model.set_statistics(obs, act)
+        target = (act - model.act_mean) / model.act_std
+        optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=1e-4)
+        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.steps, eta_min=config.lr * 0.05)
+        gen = torch.Generator().manual_seed(config.seed)
+        history, t0, every = [], time.perf_counter(), max(1, config.steps // 20)
+        running = None
+        model.train()
+        for step in range(1, config.steps + 1):
+            batch = torch.randint(0, obs.shape[0], (min(config.batch_size, obs.shape[0]),), generator=gen)
+            loss = torch.nn.functional.mse_loss(model.forward_normalised(obs[batch]), target[batch])
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+            schedule.step()
+            running = loss.item() if running is None else 0.9 * running + 0.1 * loss.item()
+            if step == 1 or step % every == 0 or step == config.steps:
+                record = {"step": step, "loss": float(loss.item()), "smoothed_loss": float(running),
+                          "seconds": round(time.perf_counter() - t0, 3)}
+                history.append(record)
+                if log:
+                    log(record)
+        return model.eval(), history
+    finally:
+        torch.set_num_threads(threads)
+
+
+def save_checkpoint(model: BCPolicyNet, folder: Path, manifest: ScenarioManifest, train: TrainConfig,
+                    extra: dict | None = None) -> tuple[Path, Path]:
+    """Weights (safetensors) and config JSON, each written atomically."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    weights, config = folder / WEIGHTS_FILE, folder / CONFIG_FILE
+    tmp = folder / f".{WEIGHTS_FILE}.{os.getpid()}.tmp"
+    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp),
+              metadata={"bc": model.config.model_dump_json()})
+    os.replace(tmp, weights)
+    contract = panel_contract(manifest)
+    body = {"bc": model.config.model_dump(mode="json"), "train": train.model_dump(mode="json"),
+            "features_version": FEATURES_VERSION, "manifest_hash": manifest_hash(manifest),
+            "contract": contract.model_dump(mode="json"), "contract_hash": contract_hash(contract), **(extra or {})}
+    tmp = folder / f".{CONFIG_FILE}.{os.getpid()}.tmp"
+    tmp.write_text(json.dumps(body, indent=2, sort_keys=True))
+    os.replace(tmp, config)
+    return weights, config
+
+
+def load_checkpoint(folder: Path) -> tuple[BCPolicyNet, dict[str, Any]]:
+    folder = Path(folder)
+    if not (folder / CONFIG_FILE).is_file() or not (folder / WEIGHTS_FILE).is_file():
+        raise FileNotFoundError(f"{folder}: not a behaviour-cloning checkpoint (needs {WEIGHTS_FILE} and {CONFIG_FILE})")
+    meta = json.loads((folder / CONFIG_FILE).read_text())
+    if meta.get("features_version") != FEATURES_VERSION:
+        raise ValueError(f"{folder}: features version {meta.get('features_version')} is not {FEATURES_VERSION}")
+    model = BCPolicyNet(BCConfig.model_validate(meta["bc"]))
+    model.load_state_dict(load_file(str(folder / WEIGHTS_FILE)))
+    return model.eval(), meta
+
+
+class BCController:
+    """Acts like the scripted controller's actuation half, with the network choosing the move."""
+
+    def __init__(self, model: BCPolicyNet, scene: Scene, seed: int):
+        self.arm = ArmController(scene, seed, noise=0.0)
+        if obs_size(self.arm) != model.config.obs_size:
+            raise ValueError(f"policy expects {model.config.obs_size} observations; this scene gives {obs_size(self.arm)}")
+        # One small matrix product per control step: in numpy, because torch's thread pool
+        # costs more than the product (4x slower per episode on a busy 2-core machine).
+        state = {k: v.detach().numpy().astype(np.float64) for k, v in model.state_dict().items()}
+        self.layers = [(state[f"net.{i}.weight"].T, state[f"net.{i}.bias"])
+                       for i, layer in enumerate(model.net) if isinstance(layer, torch.nn.Linear)]
+        self.obs_mean, self.obs_std = state["obs_mean"], state["obs_std"]
+        self.act_mean, self.act_std = state["act_mean"], state["act_std"]
+
+    def reset(self, data: mujoco.MjData) -> None:
+        self.arm.reset(data)
+
+    def action_size(self) -> int:
+        return self.arm.action_size()
+
+    def act(self, obs: np.ndarray) -> np.ndarray:
+        """The network's output for one observation: [dx, dy, dz, dyaw, grip]."""
+        x = (obs.astype(np.float64) - self.obs_mean) / self.obs_std
+        for k, (weight, bias) in enumerate(self.layers):
+            x = x @ weight + bias
+            if k < len(self.layers) - 1:
+                x = 0.5 * x * (1.0 + special.erf(x / math.sqrt(2.0)))  # exact GELU, as nn.GELU()
+        return x * self.act_std + self.act_mean
+
+    def step(self, data: mujoco.MjData) -> np.ndarray:
+        out = self.act(arm_features(data, self.arm))
+        delta, dyaw, grip = out[:3], float(out[3]), float(out[4])
+        norm = float(np.linalg.norm(delta))
+        if norm > MAX_STEP:  # the scripted controller's speed limit binds the policy too
+            delta = delta * (MAX_STEP / norm)
+        return self.arm.apply(data, delta, float(np.clip(dyaw, -MAX_YAW_STEP, MAX_YAW_STEP)), 1.0 if grip >= 0.5 else 0.0)
+
+
+class BCPolicy(Policy):
+    def __init__(self, model: BCPolicyNet, meta: dict[str, Any] | None = None, source: str | None = None):
+        self.model, self.meta, self.source = model.eval(), meta or {}, source
+
+    @classmethod
+    def from_checkpoint(cls, folder: Path | str) -> "BCPolicy":
+        model, meta = load_checkpoint(Path(folder))
+        digest = hashlib.sha256((Path(folder) / WEIGHTS_FILE).read_bytes()).hexdigest()
+        return cls(model, {**meta, "weights_sha256": digest}, str(folder))
+
+    @property
+    def contract(self) -> PanelContract | None:
+        return PanelContract.model_validate(self.meta["contract"]) if "contract" in self.meta else None
+
+    @property
+    def name(self) -> str:
+        return f"bc:{(self.meta.get('checkpoint_id') or self.meta.get('weights_sha256') or 'memory')[:12]}"
+
+    def controller(self, scene: Scene, seed: int) -> BCController:
+        return BCController(self.model, scene, seed)
+
+    def describe(self) -> dict[str, Any]:
+        digest = {k: self.meta.get(k) for k in ("checkpoint_id", "manifest_hash", "contract_hash", "weights_sha256")}
+        return {"name": self.name, "kind": "bc", **digest}
+
+
+def success_rate(manifest: ScenarioManifest, policy: Policy, seeds: Sequence[int],
+                 config: SimConfig = SimConfig()) -> tuple[float, list[tuple[int, bool, str]]]:
+    """Ground-truth success of ``policy`` on ``seeds`` (physics only): rate and (seed, ok, reason)."""
+    fast = physics_only(manifest)
+    outcomes = []
+    for seed in seeds:
+        ep = rollout(fast, seed, config, controller=policy.controller)
+        outcomes.append((seed, bool(ep.success), ep.reason))
+    return sum(ok for _, ok, _ in outcomes) / max(1, len(outcomes)), outcomes

@@ -1,0 +1,95 @@
+"""Evaluate policies on a panel: ground truth from the simulator, a verdict from frames, tables.
+
+`run_episode` rolls a policy out on one variant and seed and judges it twice: the simulator's
+verdict (the manifest's evaluation target, from state) and, when frames are rendered, the
+frame detector's on the simulator's own render (`tasks.panels.detect`), which calibrates the
+detector that judges world-model rollouts. `success_table` and `spearman` summarise.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from schemas.manifest import ScenarioManifest
+from tasks.panels.detect import judge_frames
+from tasks.policy.base import Policy
+from tasks.policy.bc import physics_only
+from tasks.sim.episode import rollout
+from tasks.sim.scene import SimConfig
+
+
+@dataclass(frozen=True)
+class EpisodeOutcome:
+    cell: str
+    seed: int
+    success: bool
+    reason: str
+    detector: bool | None = None  # the frame detector on the simulator's render; None: undecided / not run
+    detector_reason: str | None = None
+    world: bool | None = None  # the frame detector on the world model's rollout; None: no world model
+    world_reason: str | None = None
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__)
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """An outcome, plus what a world-model rollout of the same episode needs."""
+
+    outcome: EpisodeOutcome
+    context: np.ndarray | None  # the first frame of `camera`, when rendered
+    actions: np.ndarray | None
+    package_start: np.ndarray
+    control_hz: float
+
+
+def run_episode(variant: ScenarioManifest, cell: str, seed: int, policy: Policy, camera: str | None,
+                config: SimConfig = SimConfig()) -> Rollout:
+    """One episode of ``policy``; with ``camera``, rendered at the contract's cameras and judged
+    from that camera's frames too, else physics only."""
+    ep = rollout(variant if camera else physics_only(variant), seed, config, controller=policy.controller)
+    verdict, context = None, None
+    if camera:
+        frames = ep.frames[camera]
+        cam = next(c for c in variant.cameras if c.name == camera)
+        verdict = judge_frames(frames, cam, variant.evaluation, ep.object_pose[0, 0, :3])
+        context = frames[:1].copy()
+    outcome = EpisodeOutcome(cell=cell, seed=seed, success=bool(ep.success), reason=ep.reason,
+                             detector=None if verdict is None else verdict.success,
+                             detector_reason=None if verdict is None else verdict.reason)
+    return Rollout(outcome, context, ep.action.copy(), ep.object_pose[0, 0, :3].copy(), ep.control_hz)
+
+
+def rate(values: Sequence[bool | None]) -> float | None:
+    """Share of True among decided values; None when none is decided."""
+    decided = [v for v in values if v is not None]
+    return sum(decided) / len(decided) if decided else None
+
+
+def success_table(outcomes: Sequence[EpisodeOutcome], cells: Sequence[str]) -> list[dict]:
+    """Per cell (in panel order) then 'all': episodes, simulator, detector and world-model rates."""
+    rows = []
+    for cell in [*cells, "all"]:
+        mine = [o for o in outcomes if cell == "all" or o.cell == cell]
+        rows.append({"cell": cell, "episodes": len(mine), "sim": rate([o.success for o in mine]),
+                     "detector": rate([o.detector for o in mine]), "world": rate([o.world for o in mine])})
+    return rows
+
+
+def spearman(a: Sequence[float | None], b: Sequence[float | None]) -> float | None:
+    """Spearman's rank correlation over the pairs where both are known (ties share ranks);
+    None with fewer than 2 pairs or when either side is constant (it is undefined then)."""
+    pairs = [(x, y) for x, y in zip(a, b) if x is not None and y is not None]
+    if len(pairs) < 2:
+        return None
+    x, y = np.array(pairs, float).T
+    if np.ptp(x) == 0 or np.ptp(y) == 0:
+        return None
+    value = float(stats.spearmanr(x, y).statistic)
+    return None if math.isnan(value) else value

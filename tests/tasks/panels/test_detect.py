@@ -1,0 +1,57 @@
+"""The frame detector: pinhole geometry, and push verdicts against the simulator's own."""
+
+import numpy as np
+import pytest
+
+from tasks.manifests import load
+from tasks.panels.detect import judge_frames, on_plane, project
+from tasks.sim.episode import rollout
+from tasks.sim.scene import build_scene
+
+from tests.support import MANIFESTS
+
+PUSH = load(MANIFESTS / "conveyor_push.yaml")
+NOISY = PUSH.model_copy(update={"task": PUSH.task.model_copy(update={"controller_noise": 0.8})})
+
+
+def test_projection_round_trips_and_matches_the_render():
+    cam = PUSH.cameras[0]
+    points = np.array([[0.45, 0.0, 0.1], [0.3, -0.2, 0.16], [0.6, 0.25, 0.0]])
+    pixels = project(cam, points)
+    assert np.allclose(pixels[0], [64, 64], atol=1e-6)  # on the optical axis of the overhead camera
+    for p, px in zip(points, pixels):
+        assert np.allclose(on_plane(cam, px, p[2]), p, atol=1e-9)
+    # The goal disc (saturated green) is where its centre projects in the first rendered frame.
+    scene = build_scene(PUSH, 11)
+    frame = rollout(PUSH.model_copy(update={"horizon_s": 0.1}), 11).frames["overhead"][0]
+    col, row = project(cam, np.array([[*scene.goal[:2], 0.1]]))[0].round().astype(int)
+    r, g, b = frame[row, col].astype(int)
+    assert g > 200 and g > 1.6 * r and g > 1.3 * b
+
+
+@pytest.mark.parametrize("seed", [11, 13], ids=["miss", "hit"])
+def test_push_verdict_from_frames_matches_the_simulator(seed):
+    ep = rollout(NOISY, seed)
+    truth = float(np.linalg.norm(ep.object_pose[-1, 0, :2] - build_scene(NOISY, seed).goal[:2]))
+    verdict = judge_frames(ep.frames["overhead"], NOISY.cameras[0], NOISY.evaluation, ep.object_pose[0, 0, :3])
+    assert verdict.success == ep.success, (verdict.reason, ep.reason)
+    assert abs(verdict.distance_m - truth) < 0.015
+
+
+def test_undecided_without_a_detector_or_a_visible_goal():
+    bin_pick = load(MANIFESTS / "bin_pick_dim_forklift.yaml")
+    frames = np.zeros((5, 128, 128, 3), np.uint8)
+    assert judge_frames(frames, bin_pick.cameras[0], bin_pick.evaluation, np.zeros(3)).success is None
+    dark = judge_frames(frames, PUSH.cameras[0], PUSH.evaluation, np.array([0.45, -0.14, 0.13]))
+    assert dark.success is None and "goal marker not found" in dark.reason
+
+
+@pytest.mark.parametrize("cell,seed", [("dim", 13), ("jitter", 13), ("occluder", 13), ("jitter", 11)])
+def test_push_verdict_under_the_default_grids_visual_stressors(cell, seed):
+    from tasks.panels.grid import default_grid, expand
+
+    spec, variants = expand(NOISY, default_grid(NOISY))
+    variant = variants[[v.cell for v in spec.variants].index(cell)]
+    ep = rollout(variant, seed)
+    verdict = judge_frames(ep.frames["overhead"], variant.cameras[0], variant.evaluation, ep.object_pose[0, 0, :3])
+    assert verdict.success == ep.success, (verdict.reason, ep.reason)

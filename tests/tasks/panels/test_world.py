@@ -1,0 +1,58 @@
+"""The world-model plug point with an untrained tiny tokenizer and world model: shapes, sizes,
+actions reaching the model, and clear errors. (Skill is the physics evaluation's business.)"""
+
+import numpy as np
+import pytest
+import torch
+
+from models.tokenizer import VideoTokenizer
+from models.tokenizer import preset as tokenizer_preset
+from models.world_model import WorldModel, preset
+from tasks.panels.world import WorldModelRequest, WorldModelUnavailable, world_model_rollout
+from tasks.tokenize.tokens import save_checkpoint as save_tokenizer
+from tasks.world.checkpoints import save_checkpoint
+
+SIZE = 32
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    torch.manual_seed(0)
+    root = tmp_path_factory.mktemp("wm")
+    tokenizer = VideoTokenizer(tokenizer_preset("tiny-dv4x8x8"))
+    save_tokenizer(tokenizer, root / "tok")
+    c = tokenizer.config
+    model = WorldModel(preset("tiny-wm", codebook_size=c.codebook_size, temporal_compression=c.temporal_compression,
+                              max_height=SIZE // 8, max_width=SIZE // 8)).add_action_conditioning()
+    with torch.no_grad():  # wake the zero-initialised action encoder so actions change the output
+        torch.nn.init.normal_(model.action_encoder.net[2].weight, std=0.5)
+    save_checkpoint(model, root / "wm", {"tokenizer": "tok", "size": SIZE})
+    return root
+
+
+def _request(frames=13, actions=None, height=48, width=64):
+    rng = np.random.default_rng(0)
+    context = rng.integers(0, 255, (1, height, width, 3), dtype=np.uint8)
+    actions = rng.normal(0, 0.01, (40, 5)) if actions is None else actions
+    return WorldModelRequest(camera="overhead", context=context, actions=actions, control_hz=50, fps=30,
+                             frames=frames, text="push the package")
+
+
+def test_rollout_has_the_cameras_size_and_length(checkpoint):
+    out = world_model_rollout(checkpoint / "wm", _request(), root=checkpoint)
+    assert out.shape == (13, 48, 64, 3) and out.dtype == np.uint8
+    # The square the model saw is the centre 48 x 48; what lies outside it stays black.
+    assert not out[:, :, :8].any() and not out[:, :, 56:].any() and out[:, :, 8:56].any()
+    again = world_model_rollout(checkpoint / "wm", _request(), root=checkpoint)
+    assert np.array_equal(out, again)  # greedy decoding: the same request, the same frames
+
+
+def test_actions_reach_the_model(checkpoint):
+    still = world_model_rollout(checkpoint / "wm", _request(actions=np.zeros((40, 5))), root=checkpoint)
+    moved = world_model_rollout(checkpoint / "wm", _request(actions=np.full((40, 5), 0.5)), root=checkpoint)
+    assert np.array_equal(still[0], moved[0]) and not np.array_equal(still[1:], moved[1:])
+
+
+def test_not_a_world_model_checkpoint(tmp_path):
+    with pytest.raises(WorldModelUnavailable, match="not a world-model checkpoint"):
+        world_model_rollout(tmp_path, _request())
