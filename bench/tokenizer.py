@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/tokenizer.py [--budget-min 30] [--variants small-dv4x8x8,small-cv4x8x8]
 
-Renders ``conveyor_push`` episodes with MuJoCo (training seeds manifest.seed + i, held-out
+Renders a manifest's episodes (--manifest, default ``conveyor_push``; every camera) with MuJoCo (training seeds manifest.seed + i, held-out
 seeds 1000 + i), downscales them to --size, trains each variant for --budget-min minutes of
 training time (evaluation pauses the clock) and prints, per variant and per x264 CRF: bits per
 pixel, PSNR and SSIM on the held-out clips (--clip-frames frames each), H.264's PSNR and SSIM
@@ -31,32 +31,35 @@ import torch.nn.functional as F
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from models.tokenizer import VideoTokenizer, preset  # noqa: E402
-from tasks.tokenize.train import TrainConfig, psnr, to_tensor, train_tokenizer  # noqa: E402
+from tasks.tokenize.train import TrainConfig, to_tensor, train_tokenizer  # noqa: E402
 
 MANIFEST = Path(__file__).resolve().parents[1] / "manifests" / "conveyor_push.yaml"
 CRFS = (10, 16, 20, 24, 28, 32, 36, 40, 44, 48, 51)
 
 
-def render(out: Path, train: int, heldout: int, size: int) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    cache = out / f"sim_frames_{train}_{heldout}_{size}.npz"
+def render(out: Path, train: int, heldout: int, size: int, manifest_path: Path = MANIFEST
+           ) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Every camera of ``train`` episodes (seeds manifest.seed + i) and ``heldout`` ones (seeds 1000 + i)."""
+    cache = out / f"sim_frames_{manifest_path.stem}_{train}_{heldout}_{size}.npz"
     if cache.exists():
         data = np.load(cache)
-        return ([data[f"train_{i}"] for i in range(train)], [data[f"heldout_{i}"] for i in range(heldout)])
+        return ([data[k] for k in data.files if k.startswith("train_")],
+                [data[k] for k in data.files if k.startswith("heldout_")])
     from tasks import manifests
     from tasks.sim.episode import rollout
 
-    manifest = manifests.load(MANIFEST)
+    manifest = manifests.load(manifest_path)
     arrays = {}
     for name, seeds in (("train", [manifest.seed + i for i in range(train)]),
                         ("heldout", [1000 + i for i in range(heldout)])):
         for i, seed in enumerate(seeds):
             t0 = time.perf_counter()
-            frames = next(iter(rollout(manifest, seed).frames.values()))
-            arrays[f"{name}_{i}"] = resize(frames, size)
+            for camera, frames in sorted(rollout(manifest, seed).frames.items()):
+                arrays[f"{name}_{i:04d}_{camera}"] = resize(frames, size)
             print(f"rendered {name} seed {seed}: {frames.shape} in {time.perf_counter() - t0:.1f}s", flush=True)
     out.mkdir(parents=True, exist_ok=True)
     np.savez(cache, **arrays)
-    return render(out, train, heldout, size)
+    return render(out, train, heldout, size, manifest_path)
 
 
 def resize(frames: np.ndarray, size: int) -> np.ndarray:
@@ -72,17 +75,9 @@ def windows(episodes: list[np.ndarray], frames: int) -> np.ndarray:
 
 def ssim(a: np.ndarray, b: np.ndarray) -> float:
     """Mean SSIM (Wang et al. 2004: 11x11 Gaussian, sigma 1.5) over frames and RGB channels of uint8 arrays."""
-    x = torch.from_numpy(a).float().reshape(-1, *a.shape[-3:]).permute(0, 3, 1, 2).reshape(-1, 1, *a.shape[-3:-1])
-    y = torch.from_numpy(b).float().reshape(-1, *b.shape[-3:]).permute(0, 3, 1, 2).reshape(-1, 1, *b.shape[-3:-1])
-    g = torch.exp(-(torch.arange(11) - 5.0) ** 2 / (2 * 1.5 ** 2))
-    w = (g / g.sum()).outer(g / g.sum())[None, None]
-    mu_x, mu_y = F.conv2d(x, w), F.conv2d(y, w)
-    sxx = F.conv2d(x * x, w) - mu_x ** 2
-    syy = F.conv2d(y * y, w) - mu_y ** 2
-    sxy = F.conv2d(x * y, w) - mu_x * mu_y
-    c1, c2 = (0.01 * 255) ** 2, (0.03 * 255) ** 2
-    s = ((2 * mu_x * mu_y + c1) * (2 * sxy + c2)) / ((mu_x ** 2 + mu_y ** 2 + c1) * (sxx + syy + c2))
-    return float(s.mean())
+    from tasks.world.physics import ssim_frames
+
+    return float(ssim_frames(a.reshape(-1, *a.shape[-3:]), b.reshape(-1, *b.shape[-3:])).mean())
 
 
 def psnr_u8(a: np.ndarray, b: np.ndarray) -> float:
@@ -226,6 +221,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--budget-min", type=float, default=30.0, help="training minutes per variant (at most 30)")
     ap.add_argument("--variants", default="small-dv4x8x8,small-cv4x8x8")
+    ap.add_argument("--manifest", type=Path, default=MANIFEST, help="scenario whose episodes (every camera) are the clips")
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--clip-frames", type=int, default=17)
     ap.add_argument("--train-episodes", type=int, default=8)
@@ -244,9 +240,9 @@ def main() -> None:
         ap.error("--budget-min: the issue caps the bench's training at 30 minutes")
     torch.set_num_threads(args.threads)
     started = time.perf_counter()
-    train, held = render(args.out, args.train_episodes, args.heldout_episodes, args.size)
+    train, held = render(args.out, args.train_episodes, args.heldout_episodes, args.size, args.manifest)
     heldout = windows(held, args.clip_frames)
-    print(f"train: {len(train)} episodes x {train[0].shape[0]} frames; held-out: {len(heldout)} clips of "
+    print(f"{args.manifest.name}: train {len(train)} camera streams x {train[0].shape[0]} frames; held-out: {len(heldout)} clips of "
           f"{args.clip_frames} frames at {args.size}x{args.size}", flush=True)
     curves = {fmt: h264_curve(heldout, fmt) for fmt in ("yuv420p", "yuv444p")}
     results = [run_variant(v, train, heldout, args) for v in args.variants.split(",")]
