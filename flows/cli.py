@@ -22,7 +22,6 @@ out = Console()
 err = Console(stderr=True)
 
 EXIT_INVALID = 2
-EXIT_NOT_BUILT = 3
 
 
 def _fail(message: str, code: int = EXIT_INVALID) -> None:
@@ -196,10 +195,6 @@ def server(port: Optional[int] = typer.Option(None, help="API port on 127.0.0.1;
         serve(port=port, pool=pool, deploy=deploy)
     except StackError as exc:
         _fail(str(exc), 1)
-
-
-def _not_built(step: str, issue: int) -> None:
-    _fail(f"worldline {step}: not built yet (tracked in issue {issue})", EXIT_NOT_BUILT)
 
 
 @app.command()
@@ -460,6 +455,40 @@ def evaluate_physics_cmd(
     checks = ", ".join(f"{k} {'passed' if v else 'failed'}" for k, v in result["checks"].items())
     out.print(f"evaluation {result['evaluation_id']} ({result['windows']} windows, {result['moving']} with the "
               f"package moving): {checks}; table and plots under {result['folder']}", highlight=False)
+
+@app.command("loop")
+def loop_cmd(
+    manifest: Path,
+    policy: Optional[str] = typer.Option(None, help="bc:CHECKPOINT_FOLDER (default: a weak policy trained in-flow)"),
+    grid: Optional[Path] = typer.Option(None, help="stressor grid YAML (default: one stressor at a time)"),
+    episodes: Optional[int] = typer.Option(None, min=1, max=1000, help="seeds per cell (default: the grid's)"),
+    worst: int = typer.Option(1, min=1, max=8, help="how many of the lowest-success cells to derive manifests from"),
+    new_episodes: int = typer.Option(4, min=1, max=10_000, help="new episodes in all, weighted by failure rate"),
+    post_steps: int = typer.Option(200, min=1, max=1_000_000, help="post-training steps"),
+) -> None:
+    """Failures back into data: the worst stressor cells become derived manifests, simulated,
+    curated and post-trained on; success per cell before and after (Prefect flow `loop`)."""
+    parent = _load_or_exit(manifest)
+    if parent.embodiment.kind != "arm":
+        _fail(f"{manifest}: the loop post-trains behaviour cloning, which drives arms; "
+              f"this manifest's embodiment is {parent.embodiment.kind!r}")
+    _grid_or_exit(parent, grid, episodes)
+    from tasks.policy.specs import PolicySpecError, load_policy
+
+    if policy is not None:
+        try:
+            load_policy(policy)
+        except PolicySpecError as exc:
+            _fail(str(exc))
+    from flows.loop import loop as loop_flow
+
+    result = loop_flow(str(manifest), policy, str(grid) if grid else None, episodes, worst, new_episodes, post_steps)
+    fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    _print_rows(["cell", "episodes", "before", "after", "targeted"],
+                [(r["cell"], r["episodes"], fmt(r["before"]), fmt(r["after"]), "yes" if r["targeted"] else "")
+                 for r in result["table"]], "table", title="success rate per stressor cell, before and after")
+    out.print(f"checkpoint {result['checkpoint']}", highlight=False)
+
 
 # `worldline evaluate policies` (flows/evaluate.py), defined above with the panels.
 evaluate_app.command("policies")(evaluate_policies_cmd)

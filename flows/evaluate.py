@@ -125,8 +125,8 @@ def _fmt(value: float | None) -> str:
 
 @flow(name="evaluate", log_prints=True, task_runner=task_runner())
 def evaluate(manifest: str, grid: str | None = None, episodes: int | None = None,
-                      policies: list[str] | None = None, compare: list[str] | None = None,
-                      world_model: str | None = None, detector: bool = True, guard: bool = True) -> dict:
+             policies: list[str] | None = None, compare: list[str] | None = None,
+             world_model: str | None = None, detector: bool = True, guard: bool = True) -> dict:
     """Evaluate ``policies`` (default: the scripted controller at the manifest's noise and at
     0.8) on the panel of ``manifest`` over ``grid``, and on the panels of the ``compare``
     manifests over the same grid (their contracts must match)."""

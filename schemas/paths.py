@@ -39,5 +39,9 @@ PHYSICS_PLOT = "evaluations/{evaluation_id}/{plot}.png"
 EPISODE_CODES_FILE = "cache/episode_codes/{tokenizer_id:.12}/{video_sha256:.24}-{size}.npz"
 
 
+# Manifests the loop derives from a panel's failing cells.
+DERIVED_MANIFEST_FILE = "manifests/derived/{manifest_hash:.12}.yaml"
+
+
 def resolve(root: Path, template: str, **fields) -> Path:
     return Path(root) / template.format(**fields)

@@ -1,0 +1,107 @@
+"""The loop's pure half: the worst stressor cells of an evaluation, how many new episodes each
+gets, the manifests derived from them, and fine-tuning a behaviour-cloning policy.
+
+No Prefect here: `flows/loop.py` wires these into the DAG."""
+
+from __future__ import annotations
+
+import copy
+import time
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from models.bc_policy import BCPolicyNet
+from schemas.manifest import ScenarioManifest
+from schemas.panel import StressorGrid
+from tasks.panels.grid import variant_manifest
+from tasks.policy.bc import Demonstrations, TrainConfig
+
+# New data must not replay the panel's seeds (seed, seed+1, ...), the demonstrations of
+# train-policy (seed+1000..) or its held-out check (seed+2000..).
+SEED_OFFSET = 3000
+RELATION_DERIVED = "derived_from_failure"
+RELATION_POSTTRAINED = "posttrained_from"
+
+
+def worst_cells(table: Sequence[dict], worst: int = 1, column: str = "sim") -> list[tuple[str, float]]:
+    """The ``worst`` cells with the lowest ``column`` success rate, as (cell, rate); ties keep
+    the table's (the grid's) order. Cells without a rate and the 'all' row are skipped."""
+    rated = [(r["cell"], float(r[column])) for r in table if r["cell"] != "all" and r.get(column) is not None]
+    return sorted(rated, key=lambda pair: pair[1])[:max(0, worst)]  # sorted is stable
+
+
+def episode_counts(success: Sequence[float], total: int) -> list[int]:
+    """``total`` new episodes shared in proportion to each cell's failure rate (1 - success),
+    each cell at least 1 (so the sum is max(total, len(success))). Largest remainders get
+    the leftovers; all-successful cells share equally."""
+    n = len(success)
+    if n == 0:
+        return []
+    failure = [max(0.0, 1.0 - s) for s in success]
+    if sum(failure) == 0:
+        failure = [1.0] * n
+    spare = max(0, total - n)
+    shares = [spare * f / sum(failure) for f in failure]
+    counts = [1 + int(s) for s in shares]
+    order = sorted(range(n), key=lambda i: (-(shares[i] - int(shares[i])), i))
+    for i in order[:spare - sum(int(s) for s in shares)]:
+        counts[i] += 1
+    return counts
+
+
+def derive_manifests(parent: ScenarioManifest, grid: StressorGrid, cells: Sequence[str],
+                     seed_offset: int = SEED_OFFSET) -> list[ScenarioManifest]:
+    """One manifest per cell: the parent with the cell's stressors (as its panel variant) on
+    fresh seeds (parent.seed + seed_offset ..), ``parent`` set to the parent's hash. The
+    contract is unchanged, so a policy post-trained on them still fits the panel."""
+    by_name = {c.name: c for c in grid.cells}
+    loop_grid = StressorGrid.model_validate({**grid.model_dump(mode="json"), "name": "loop",
+                                             "seed": parent.seed + seed_offset,
+                                             "description": f"failure cells of {grid.name}"})
+    return [variant_manifest(parent, loop_grid, by_name[name]) for name in cells]
+
+
+def post_train(model: BCPolicyNet, demos: Demonstrations, config: TrainConfig) -> tuple[BCPolicyNet, list[dict]]:
+    """Continue training a copy of ``model`` on ``demos`` (seeded). The normalisation statistics
+    are kept: the network's inputs and outputs keep the meaning the weights were trained on."""
+    torch.manual_seed(config.seed)
+    threads = torch.get_num_threads()
+    torch.set_num_threads(config.threads)
+    try:
+        tuned = copy.deepcopy(model)
+        obs, act = torch.from_numpy(demos.obs), torch.from_numpy(demos.act)
+        target = (act - tuned.act_mean) / tuned.act_std
+        optimiser = torch.optim.AdamW(tuned.parameters(), lr=config.lr, weight_decay=1e-4)
+        gen = torch.Generator().manual_seed(config.seed)
+        history, t0, every = [], time.perf_counter(), max(1, config.steps // 20)
+        tuned.train()
+        for step in range(1, config.steps + 1):
+            batch = torch.randint(0, obs.shape[0], (min(config.batch_size, obs.shape[0]),), generator=gen)
+            loss = torch.nn.functional.mse_loss(tuned.forward_normalised(obs[batch]), target[batch])
+            optimiser.zero_grad(set_to_none=True)
+            loss.backward()
+            optimiser.step()
+            if step == 1 or step % every == 0 or step == config.steps:
+                history.append({"step": step, "loss": float(loss.item()), "seconds": round(time.perf_counter() - t0, 3)})
+        return tuned.eval(), history
+    finally:
+        torch.set_num_threads(threads)
+
+
+def merge(parts: Sequence[Demonstrations]) -> Demonstrations:
+    """Demonstrations of several manifests as one set (episode indices renumbered)."""
+    offsets = np.cumsum([0, *(len(p.seeds) for p in parts)])
+    return Demonstrations(obs=np.concatenate([p.obs for p in parts]), act=np.concatenate([p.act for p in parts]),
+                          episode=np.concatenate([p.episode + o for p, o in zip(parts, offsets)]),
+                          seeds=tuple(s for p in parts for s in p.seeds),
+                          successes=tuple(s for p in parts for s in p.successes))
+
+
+def before_after(before: Sequence[dict], after: Sequence[dict], targeted: Sequence[str]) -> list[dict]:
+    """Rows of two evaluations' tables on the same panel: cell, episodes, simulator success
+    before and after, and whether the loop made new data for the cell."""
+    rates = {r["cell"]: r["sim"] for r in after}
+    return [{"cell": r["cell"], "episodes": r["episodes"], "before": r["sim"], "after": rates.get(r["cell"]),
+             "targeted": r["cell"] in targeted} for r in before]
