@@ -93,7 +93,8 @@ def active_box(frames: np.ndarray, dark: int = 24) -> tuple[int, int, int, int]:
     A bar is a run of border rows (columns) that stays darker than ``dark`` in every given
     frame; bars count neither as flat nor as underexposed picture. frames: N x h x w x 3 uint8.
     """
-    peak = frames.max(axis=(0, 3))
+    peak = frames.max(axis=0)  # over frames first: numpy reduces a 3-wide last axis slowly
+    peak = np.maximum(np.maximum(peak[..., 0], peak[..., 1]), peak[..., 2])
     h, w = peak.shape
     rows = np.flatnonzero(np.percentile(peak, 98, axis=1) >= dark)
     cols = np.flatnonzero(np.percentile(peak, 98, axis=0) >= dark)
@@ -113,17 +114,56 @@ def palette_size(frame: np.ndarray, cover: float = 0.95) -> float:
     keeps its many shades, while drawn content (slides, cartoons, bars) stays at a handful.
     Clipped pixels (black or white in every channel) are left out when at least a tenth of
     the picture remains, so a blown-out shot is judged by what is left of it.
+
+    Computed from histograms (grey levels, then colours) rather than by sorting pixels: the
+    same number as the sorting reference in test_filters, about ten times faster.
     """
-    lum = frame.max(axis=2).astype(np.int16) + frame.min(axis=2)
-    unclipped = (lum > 12) & (lum < 498)
-    if unclipped.mean() >= 0.1:
-        frame = frame[unclipped][None]
-    lo, hi = np.percentile(frame, (1, 99))
-    stretched = np.clip((frame.astype(np.float32) - lo) * (255.0 / max(16.0, hi - lo)), 0, 255).astype(np.uint8)
-    q = (stretched >> 4).astype(np.int32)
-    counts = np.bincount(((q[..., 0] << 8) | (q[..., 1] << 4) | q[..., 2]).ravel(), minlength=4096)
+    h, w = frame.shape[:2]
+    frame = np.ascontiguousarray(frame)
+    planes = cv2.split(frame)
+    lum = cv2.add(cv2.max(cv2.max(planes[0], planes[1]), planes[2]),
+                  cv2.min(cv2.min(planes[0], planes[1]), planes[2]), dtype=cv2.CV_16S)
+    clipped = (lum <= 12) | (lum >= 498)
+    n_clipped = int(np.count_nonzero(clipped))
+    drop = n_clipped > 0 and (h * w - n_clipped) / (h * w) >= 0.1
+    if frame.size < 1 << 24:  # calcHist counts in float32: exact below 2^24
+        hist = cv2.calcHist([frame.reshape(h, w * 3)], [0], None, [256], [0, 256]).ravel().astype(np.int64)
+    else:
+        hist = np.bincount(frame.ravel(), minlength=256)
+    if drop:
+        hist -= np.bincount(frame[clipped].ravel(), minlength=256)
+    lo, hi = percentiles_of_histogram(hist, (1, 99))
+    # The stretch of the reference, applied once per grey level (float64, as numpy promotes
+    # a float32 array minus a float64 scalar) and looked up per pixel.
+    stretch = np.clip((np.arange(256, dtype=np.float32) - lo) * (255.0 / max(16.0, hi - lo)), 0, 255)
+    lut = stretch.astype(np.uint8) >> 4
+    q = [cv2.LUT(p, lut) for p in planes]
+    codes = (q[0].astype(np.uint16) << 8) | (q[1].astype(np.uint16) << 4) | q[2]
+    counts = np.bincount(codes.ravel(), minlength=4096)
+    if drop:
+        counts -= np.bincount(codes[clipped], minlength=4096)
     total = np.cumsum(np.sort(counts)[::-1])
     return float(np.searchsorted(total, cover * total[-1]) + 1)
+
+
+def percentiles_of_histogram(hist: np.ndarray, qs: Sequence[float]) -> list[np.float64]:
+    """``np.percentile(values, qs)`` (linear method) of the integer values counted in ``hist``
+    (hist[v] = how many values equal v), bit for bit: the same virtual index, the two order
+    statistics around it from the cumulative counts, and numpy's own interpolation steps."""
+    cum = np.cumsum(hist)
+    n = int(cum[-1])
+    out = []
+    for q in qs:
+        virtual = (n - 1) * (np.float64(q) / 100)
+        below = np.floor(virtual)
+        top = virtual >= n - 1
+        a = int(np.searchsorted(cum, n - 1 if top else int(below), side="right"))
+        b = a if top else int(np.searchsorted(cum, int(below) + 1, side="right"))
+        gamma = virtual - below
+        step = b - a
+        # numpy's _lerp: a + step * gamma, or from the upper end when gamma >= 0.5.
+        out.append(np.float64(b) - step * (1 - gamma) if gamma >= 0.5 else np.float64(a) + step * gamma)
+    return out
 
 
 def run_filters(

@@ -27,7 +27,15 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from tasks.curate.filters import FilterConfig, Verdict, active_box, check_frames, palette_size, sample_indices
+from tasks.curate.filters import (
+    FilterConfig,
+    Verdict,
+    active_box,
+    check_frames,
+    palette_size,
+    percentiles_of_histogram,
+    sample_indices,
+)
 from tasks.curate.video_type import looks_drawn
 
 
@@ -135,17 +143,22 @@ def judge(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> Verdi
         a, b = (cv2.cvtColor(frames[j, top:bottom, left:right], cv2.COLOR_RGB2GRAY) for j in (i, i + 1))
         noise.append(temporal_noise(a, b))
     noise = [n for n in noise if n == n]
-    luma = np.stack(greys)
-    moving = float(np.median((np.abs(np.diff(luma.astype(np.int16), axis=0)) > 6).mean(axis=(1, 2)))) if len(luma) > 1 else 0.0
+    pixels = sum(g.size for g in greys)
+    changed = [np.count_nonzero(cv2.absdiff(a, b) > 6) / a.size for a, b in zip(greys[:-1], greys[1:])]
+    moving = float(np.median(changed)) if changed else 0.0
+    # Exposure statistics from the grey-level histogram: the same numbers as the mean and
+    # percentiles of the stacked greys (integer sums, exact order statistics), without sorting.
+    hist = sum(np.bincount(g.ravel(), minlength=256) for g in greys)
+    p99, p01 = percentiles_of_histogram(hist, (99, 1))
     valid = [s for s in sharp if s == s]
     scores = {
         "sharpness": float(np.median(valid)) if valid else float("nan"),
         "edge_fraction": float(np.median(edge_frac)),
-        "luma_mean": float(luma.mean()),
-        "luma_p99": float(np.percentile(luma, 99)),
-        "luma_p01": float(np.percentile(luma, 1)),
-        "clip_high": float((luma >= 250).mean()),
-        "clip_low": float((luma <= 5).mean()),
+        "luma_mean": float(np.float64(hist @ np.arange(256)) / pixels),
+        "luma_p99": float(p99),
+        "luma_p01": float(p01),
+        "clip_high": float(hist[250:].sum() / pixels),
+        "clip_low": float(hist[:6].sum() / pixels),
         "noise": float(np.median(noise)) if noise else 0.0,
         "palette": float(np.median([palette_size(f) for f in picked[:: max(1, len(picked) // 3)]])),
         "luma_change": moving,
@@ -154,16 +167,20 @@ def judge(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> Verdi
     # slide is not an overexposed shot. Only footage with a real palette is judged for it.
     # Drawn is the video-type filter's call (its default rules, a few samples), so a white
     # slide is judged the same way by both filters.
-    footage = scores["palette"] > config.drawn_palette and not looks_drawn(frames, times)
+    # Asked only when the exposure would be rejected: the video-type pass costs as much as
+    # the rest of this filter.
+    def footage() -> bool:
+        return scores["palette"] > config.drawn_palette and not looks_drawn(frames, times)
+
     # A blown-out shot can clip to a few flat tones and look drawn (or keep dark areas that
     # hold its mean down): much of it clipped white while the picture moves is overexposure
     # whatever its palette, while a still checkerboard with as much white is not.
     blown = scores["clip_high"] >= config.overexposed_clip and moving >= config.moving_min
     reason = None
     washed = scores["luma_p01"] >= config.washed_p01 and scores["luma_mean"] >= config.washed_mean
-    if (footage and (scores["luma_mean"] >= config.overexposed_mean or washed)) or blown:
+    if blown or ((scores["luma_mean"] >= config.overexposed_mean or washed) and footage()):
         reason = "overexposed"
-    elif footage and scores["luma_p99"] <= config.underexposed_p99:
+    elif scores["luma_p99"] <= config.underexposed_p99 and footage():
         reason = "underexposed"
     elif scores["noise"] > config.noise_max:
         reason = "noise"

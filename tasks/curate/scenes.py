@@ -1,9 +1,10 @@
 """Streaming scene split: hard cuts from PySceneDetect, gradual transitions from frame statistics.
 
 Frames arrive one at a time (``AnalysisFrame``s from ``decode.analysis_frames``). Hard cuts
-come from a PySceneDetect 0.7 detector (AdaptiveDetector by default) fed frame by frame,
-with FrameTimecodes built from the frames' timestamps. Gradual transitions are found on
-per-frame statistics (mean luma, gradient energy, and a blurred 64-px grey thumbnail):
+come from a PySceneDetect 0.7 detector (AdaptiveDetector by default, taking RGB frames through
+``detectors.py``) fed frame by frame, with FrameTimecodes built from the frames' timestamps.
+Gradual transitions are found on per-frame statistics (mean luma, gradient energy, and a
+blurred 64-px grey thumbnail):
 
 - a fade through black is a luma valley near black with monotone ramps either side
   (ThresholdDetector would give one cut mid-fade; the ramps are what must be excluded);
@@ -34,9 +35,9 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 from scenedetect.common import FrameTimecode, Timecode
 from scenedetect.detector import FlashFilter
-from scenedetect.detectors import AdaptiveDetector, ContentDetector
 
 from tasks.curate.decode import AnalysisConfig, AnalysisFrame, DecodeReport, SourceInfo, analysis_frames, probe
+from tasks.curate.detectors import RgbAdaptiveDetector, RgbContentDetector
 
 MICROSECOND = Fraction(1, 1_000_000)
 THUMB_WIDTH = 64
@@ -106,10 +107,10 @@ class Scene:
 
 def _detector(config: SceneConfig):
     if config.detector == "content":
-        return ContentDetector(threshold=config.content_threshold, min_scene_len=config.min_cut_gap_s,
-                               filter_mode=FlashFilter.Mode.SUPPRESS)
-    return AdaptiveDetector(adaptive_threshold=config.adaptive_threshold, min_scene_len=config.min_cut_gap_s,
-                            window_width=config.adaptive_window, min_content_val=config.min_content_val)
+        return RgbContentDetector(threshold=config.content_threshold, min_scene_len=config.min_cut_gap_s,
+                                  filter_mode=FlashFilter.Mode.SUPPRESS)
+    return RgbAdaptiveDetector(adaptive_threshold=config.adaptive_threshold, min_scene_len=config.min_cut_gap_s,
+                               window_width=config.adaptive_window, min_content_val=config.min_content_val)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -169,8 +170,22 @@ def _blend_fit(thumbs: np.ndarray, a: int, b: int) -> tuple[float, float, float,
     return change, residual, order, jump
 
 
+def change_gap(max_len: int) -> int:
+    """k of the dissolve finder's change across 2k frames, for transitions up to ``max_len``."""
+    return max(2, (max_len // 2 + 2) // 3)
+
+
+def frame_change(thumbs: np.ndarray, gap: int) -> np.ndarray:
+    """N float64: change[i] = mean |thumbs[i] - thumbs[i - 2 gap]| of N x th x tw float32
+    thumbnails (0 for the first 2 gap frames). Each value depends only on its two frames, so
+    a stream can append one per frame instead of measuring every window again."""
+    change = np.zeros(len(thumbs))
+    change[2 * gap:] = np.abs(thumbs[2 * gap:] - thumbs[: len(thumbs) - 2 * gap]).mean(axis=(1, 2))
+    return change
+
+
 def _dissolves(sharp: np.ndarray, thumbs: np.ndarray, h: int, max_len: int, config: SceneConfig,
-               ended: bool, cache: dict, offset: int) -> list[Span]:
+               ended: bool, cache: dict, offset: int, change: np.ndarray | None) -> list[Span]:
     """Dissolves: for each candidate centre, the best-fitting blend span of a few widths."""
     n = len(sharp)
     pad = np.full(h, -np.inf)
@@ -181,10 +196,10 @@ def _dissolves(sharp: np.ndarray, thumbs: np.ndarray, h: int, max_len: int, conf
                if r1 - r0 <= max_len + 2 and dip[r0:r1].min() <= config.dissolve_dip}
     # Shots of unequal sharpness need not dip: also try where the change across 2k frames
     # peaks at 1.5 times its level 3k frames either side.
-    k = max(2, h // 3)
+    k = change_gap(max_len)
     if n > 8 * k:
         dk = np.zeros(n)
-        dk[k: n - k] = np.abs(thumbs[2 * k:] - thumbs[: n - 2 * k]).mean(axis=(1, 2))
+        dk[k: n - k] = (frame_change(thumbs, k) if change is None else change)[2 * k:]
         c = np.arange(4 * k, n - 4 * k)
         peak = ((dk[c] >= config.dissolve_min_change) & (dk[c] >= dk[c - 1]) & (dk[c] > dk[c + 1])
                 & (dk[c] >= 1.5 * np.minimum(dk[c - 3 * k], dk[c + 3 * k])))
@@ -213,17 +228,20 @@ def _dissolves(sharp: np.ndarray, thumbs: np.ndarray, h: int, max_len: int, conf
 
 def find_transitions(luma: np.ndarray, sharp: np.ndarray, thumbs: np.ndarray, max_len: int,
                      config: SceneConfig, ended: bool = False, cache: dict | None = None,
-                     offset: int = 0) -> list[Span]:
+                     offset: int = 0, change: np.ndarray | None = None) -> list[Span]:
     """Gradual transitions in N frames, as sorted, disjoint (start, end exclusive, kind).
 
     luma: N mean luma (0..255); sharp: N mean squared grey gradient; thumbs: N x th x tw
     float32 blurred grey thumbnails. Unless the video has ``ended``, candidates that later
     frames could still change are left out. ``cache`` (with ``offset`` added to keys) keeps
-    blend fits between calls on overlapping windows.
+    blend fits between calls on overlapping windows. ``change`` is
+    ``frame_change(thumbs, change_gap(max_len))`` when the caller keeps it already (the first
+    2 gap values are not read).
     """
     h = max_len // 2 + 2
     fades = _fades(luma, h, max_len, config, ended)
-    dissolves = _dissolves(sharp, thumbs, h, max_len, config, ended, {} if cache is None else cache, offset)
+    dissolves = _dissolves(sharp, thumbs, h, max_len, config, ended, {} if cache is None else cache, offset,
+                           change)
     # A fade is also a blend (with black); its luma ramps bound it better than a blend fit.
     found = sorted(fades + [d for d in dissolves if not any(d[0] < b and a < d[1] for a, b, _ in fades)])
     merged: list[Span] = []
@@ -237,13 +255,12 @@ def find_transitions(luma: np.ndarray, sharp: np.ndarray, thumbs: np.ndarray, ma
 
 
 def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray]:
-    """(mean luma, blurred 64-px grey thumbnail, mean squared gradient, half-size BGR frame)
+    """(mean luma, blurred 64-px grey thumbnail, mean squared gradient, half-size RGB frame)
     of an RGB analysis frame. Frames wider than 160 px are measured at half size: the same
     cuts and transitions on our corpus and on bikes.mp4, at a quarter of the cost."""
     h, w = image.shape[:2]
     small = image if w <= 160 else cv2.resize(image, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
-    bgr = cv2.cvtColor(small, cv2.COLOR_RGB2BGR)
-    grey = cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY)
+    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
     h, w = grey.shape
     size = (THUMB_WIDTH, max(1, round(h * THUMB_WIDTH / w))) if w > THUMB_WIDTH else (w, h)
     thumb = cv2.resize(grey, size, interpolation=cv2.INTER_AREA).astype(np.float32)
@@ -251,7 +268,7 @@ def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray]:
     gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
     sharp = float(cv2.mean(gx * gx + gy * gy)[0])
     # Blurred so that sub-pixel camera motion does not read as a change of content.
-    return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, bgr
+    return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, small
 
 
 class _Rows:
@@ -297,7 +314,8 @@ class SceneSplitter:
         self.index: list[int] = []
         self.times: list[float] = []
         self.images: list[np.ndarray | None] = []
-        self.luma, self.sharp = _Rows(np.float64), _Rows(np.float64)
+        self.luma, self.sharp, self.change = _Rows(np.float64), _Rows(np.float64), _Rows(np.float64)
+        self.gap = change_gap(self.max_len)
         self.thumbs: _Rows | None = None  # blurred grey thumbnails, shape set by the first frame
         self.cuts: list[int] = []  # positions of first frames after a hard cut
         self.fits: dict = {}
@@ -315,16 +333,20 @@ class SceneSplitter:
         self.index.append(frame.index)
         self.times.append(frame.time)
         self.images.append(frame.image if self.keep_frames else None)  # from position self.shown
-        luma, thumb, sharp, bgr = _features(frame.image)
+        luma, thumb, sharp, small = _features(frame.image)
         if self.thumbs is None:
             self.thumbs = _Rows(np.float32, thumb.shape)
         self.luma.append(luma)
         self.thumbs.append(thumb)
         self.sharp.append(sharp)
+        # The dissolve finder's change across 2 gap frames, measured once per frame rather than
+        # over every overlapping search window (that was most of the transition search's time).
+        back = pos - 2 * self.gap - self.base
+        self.change.append(np.abs(thumb - self.thumbs.view(back)[0]).mean() if back >= 0 else 0.0)
         pts = round(frame.time / MICROSECOND)
         self.by_pts[pts] = pos
         code = FrameTimecode(Timecode(pts=pts, time_base=MICROSECOND), fps=self.rate)
-        for cut in self.detector.process_frame(code, bgr):
+        for cut in self.detector.process_frame(code, small):
             self.cuts.append(self.by_pts.get(cut.pts, pos))
         if len(self.by_pts) > 64:
             del self.by_pts[next(iter(self.by_pts))]
@@ -346,7 +368,7 @@ class SceneSplitter:
             lo = max(self.base, start - self.lag)
             found = find_transitions(self.luma.view(lo - self.base), self.sharp.view(lo - self.base),
                                      self.thumbs.view(lo - self.base), self.max_len, self.config,
-                                     ended=final, cache=self.fits, offset=lo)
+                                     ended=final, cache=self.fits, offset=lo, change=self.change.view(lo - self.base))
             spans = [(a + lo, b + lo, kind) for a, b, kind in found if a + lo >= start]
         near = self.absorb
         cuts = [(c, c, "cut") for c in self.cuts if not any(a - near <= c < b + near for a, b, _ in spans)]
@@ -420,7 +442,7 @@ class SceneSplitter:
             return
         for store in (self.index, self.times):
             del store[:drop]
-        for rows in (self.luma, self.sharp, self.thumbs):
+        for rows in (self.luma, self.sharp, self.thumbs, self.change):
             rows.drop(drop)
         self.base += drop
         self.cuts = [c for c in self.cuts if c >= self.base]

@@ -81,3 +81,21 @@ def make_video(tmp_path_factory):
         return write_video(path, frames, fps=fps, times=times, rotation=rotation, sar=sar, crf=crf, gop=gop)
 
     return make
+
+
+REAL_VIDEOS = ("bikes.mp4", "chaplin.mp4", "aloha_sim_transfer_cube.mp4", "smpte-2997.mp4", "carphone_pristine.mp4")
+
+
+@pytest.fixture(scope="session")
+def real_frames() -> dict[str, np.ndarray]:
+    """Analysis frames (256 px, as the curate flow decodes them) of the real footage in
+    ../shared/data/videos: file name -> T x h x w x 3 uint8 RGB, for checking fast paths
+    against their slow references on pictures no generator made. Skips when absent."""
+    from tasks.curate.decode import analysis_frames
+    from tests.support import SHARED_DATA
+
+    folder = SHARED_DATA / "videos"
+    if not folder.is_dir():
+        pytest.skip("../shared/data is absent")
+    return {name: np.stack([f.image for f in analysis_frames(folder / name)])
+            for name in REAL_VIDEOS if (folder / name).exists()}

@@ -7,6 +7,8 @@ import cv2
 import numpy as np
 import pytest
 
+from tasks.curate import quality
+from tasks.curate.filters import active_box, sample_indices
 from tasks.curate.quality import QualityConfig, judge, temporal_noise
 
 H, W, FPS, T = 144, 256, 30.0, 60
@@ -132,3 +134,29 @@ def test_washed_out_footage_is_overexposed_but_bright_footage_with_shadows_is_no
     verdict = judge(bright, TIMES, QualityConfig())
     assert verdict.scores["luma_mean"] >= QualityConfig().washed_mean
     assert verdict.keep, verdict.scores
+
+
+def test_exposure_scores_equal_numpy_statistics_of_the_sampled_greys(real_frames):
+    # The filter takes them from a grey-level histogram; the reference stacks and sorts.
+    config = QualityConfig()
+    scenes = [scene(), np.clip(scene().astype(int) + 90, 0, 255).astype(np.uint8)]
+    scenes += [f[:60] for f in real_frames.values()]
+    for frames in scenes:
+        times = np.arange(len(frames)) / FPS
+        picked = frames[sample_indices(len(frames), config.n_samples)]
+        top, bottom, left, right = active_box(picked)
+        luma = np.stack([cv2.cvtColor(f[top:bottom, left:right], cv2.COLOR_RGB2GRAY) for f in picked])
+        moving = float(np.median((np.abs(np.diff(luma.astype(np.int16), axis=0)) > 6).mean(axis=(1, 2))))
+        reference = {"luma_mean": float(luma.mean()), "luma_p99": float(np.percentile(luma, 99)),
+                     "luma_p01": float(np.percentile(luma, 1)), "clip_high": float((luma >= 250).mean()),
+                     "clip_low": float((luma <= 5).mean()), "luma_change": moving}
+        scores = judge(frames, times, config).scores
+        assert {k: scores[k] for k in reference} == reference
+
+
+def test_the_video_type_pass_is_asked_only_when_exposure_would_reject(monkeypatch):
+    asked = []
+    monkeypatch.setattr(quality, "looks_drawn", lambda frames, times: asked.append(1) or False)
+    assert judge(scene(), TIMES, QualityConfig()).keep and not asked  # normal exposure: never asked
+    dark = (scene() * 0.2).astype(np.uint8)
+    assert judge(dark, TIMES, QualityConfig()).reason == "underexposed" and len(asked) == 1

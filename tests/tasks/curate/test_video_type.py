@@ -6,7 +6,8 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from tasks.curate.video_type import VideoTypeConfig, classify, judge
+from tasks.curate.filters import palette_size
+from tasks.curate.video_type import VideoTypeConfig, _channel_max, _top_share, classify, frame_features, judge
 
 H, W, FPS, T = 144, 256, 30.0, 60
 TIMES = np.arange(T) / FPS
@@ -159,3 +160,39 @@ def test_a_cartoon_with_a_dozen_colours_is_animation_but_a_dark_shot_is_not():
             "change": 0.2, "crisp": 0.0}
     assert classify(dark, cfg) == "physical"
     assert classify({**dark, "crisp": 0.4}, cfg) == "animation"
+
+
+def frame_features_reference(frame: np.ndarray, config: VideoTypeConfig) -> tuple[float, ...]:
+    """``frame_features`` as first written: int16 spans and numpy reductions over channels."""
+    soft = cv2.GaussianBlur(frame, (3, 3), 0)
+    k = np.ones((5, 5), np.uint8)
+    span = (cv2.dilate(soft, k).astype(np.int16) - cv2.erode(soft, k)).max(axis=2)
+    flat = float((span <= config.flat_range).mean())
+    crisp = float((span > config.crisp_range).mean() / max(1.0 - flat, 1e-6))
+    grey = cv2.cvtColor(frame, cv2.COLOR_RGB2GRAY)
+    g = grey.astype(np.float32)
+    gx, gy = cv2.Sobel(g, cv2.CV_32F, 1, 0), cv2.Sobel(g, cv2.CV_32F, 0, 1)
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(cv2.Canny(grey, 60, 150), connectivity=8)
+    long_ids = np.zeros(n, bool)
+    long_ids[1:] = np.maximum(stats[1:, 2], stats[1:, 3]) >= config.long_edge * min(grey.shape)
+    on_long = long_ids[labels]
+    axis_edges = 0.0
+    if on_long.sum() >= 20:
+        angle = np.degrees(np.arctan2(np.abs(gy[on_long]), np.abs(gx[on_long])))
+        axis_edges = float((np.minimum(angle, 90.0 - angle) <= 4.0).mean())
+    ax, ay = np.abs(gx), np.abs(gy)
+    lines = (_top_share(ax.mean(axis=0)) * ax.sum() + _top_share(ay.mean(axis=1)) * ay.sum()) / (ax.sum() + ay.sum() + 1e-6)
+    hsv = cv2.cvtColor(frame, cv2.COLOR_RGB2HSV)
+    saturated = float(((hsv[..., 1] >= 160) & (hsv[..., 2] >= 100)).mean())
+    return flat, palette_size(frame), axis_edges, float(lines), saturated, crisp
+
+
+def test_frame_features_equal_the_reference(real_frames):
+    config = VideoTypeConfig()
+    pictures = [f for frames in real_frames.values() for f in frames[::25]]
+    pictures += [footage()[0], colour_bars()[0], slides()[-1], animation()[10], footage()[5][10:130, 20:240]]
+    for frame in pictures:
+        assert frame_features(frame, config) == frame_features_reference(frame, config)
+    stack = np.stack(pictures[-5:-1])
+    assert np.array_equal(_channel_max(stack), stack.max(axis=3))
+    assert np.array_equal(_channel_max(pictures[-1]), pictures[-1].max(axis=2))
