@@ -180,8 +180,14 @@ def demo() -> None:
     """Run the whole loop on built-in generated data, then print a lineage summary."""
     from flows.demo import demo as demo_flow
 
-    demo_flow()
+    result = demo_flow()
     summary()
+    cols = ["cell", "episodes", "before", "after", "targeted"]
+    _print_rows(cols, [tuple(r[c] for c in cols) for r in result["loop"]["table"]], "table",
+                title="the loop: simulator success per stressor cell before and after post-training")
+    # What lies behind a failed evaluation (the world-model one: through the world model's
+    # checkpoints to its token shards, clips, raw videos and manifests).
+    audit("failure", manifest=None, artifact=result["audit_evaluation"], fmt="table")
 
 
 @app.command()
@@ -463,8 +469,8 @@ def loop_cmd(
     grid: Optional[Path] = typer.Option(None, help="stressor grid YAML (default: one stressor at a time)"),
     episodes: Optional[int] = typer.Option(None, min=1, max=1000, help="seeds per cell (default: the grid's)"),
     worst: int = typer.Option(1, min=1, max=8, help="how many of the lowest-success cells to derive manifests from"),
-    new_episodes: int = typer.Option(4, min=1, max=10_000, help="new episodes in all, weighted by failure rate"),
-    post_steps: int = typer.Option(200, min=1, max=1_000_000, help="post-training steps"),
+    new_episodes: int = typer.Option(12, min=1, max=10_000, help="new episodes in all, weighted by failure rate"),
+    post_steps: int = typer.Option(2000, min=1, max=1_000_000, help="post-training steps"),
 ) -> None:
     """Failures back into data: the worst stressor cells become derived manifests, simulated,
     curated and post-trained on; success per cell before and after (Prefect flow `loop`)."""

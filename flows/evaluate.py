@@ -34,6 +34,7 @@ from tasks.policy.base import Policy
 from tasks.policy.bc import BCPolicy
 from tasks.policy.evaluate import EpisodeOutcome, Rollout, run_episode, spearman, success_table
 from tasks.policy.specs import load_policy
+from tasks.world.checkpoints import WEIGHTS_FILE
 
 STAGE = "evaluate_policy"
 DEFAULT_POLICIES = ("scripted", "scripted:0.8")
@@ -87,6 +88,19 @@ def evaluate_one(run: RunContext, spec: PanelSpec, variants: list[ScenarioManife
             outcomes.append(outcome)
             bar.advance()
     return outcomes
+
+
+def world_checkpoints(run: RunContext, world_model: str | None) -> list[str]:
+    """Lineage ids of the world-model checkpoint a folder holds (found by its weights' bytes), so
+    an evaluation traces back through it to its token shards, clips and raw videos."""
+    if not world_model:
+        return []
+    weights = Path(world_model) / WEIGHTS_FILE
+    if not weights.is_file():
+        return []
+    _, rows = run.warehouse.query("SELECT artifact_id FROM artifacts WHERE kind = 'checkpoint' AND sha256 = $sha "
+                                  "ORDER BY artifact_id", {"sha": sha256_file(str(weights))})
+    return [r[0] for r in rows]
 
 
 def evaluation_lineage(evaluation_id: str, result_file: Path, root: Path, body: dict, panel_id: str,
@@ -162,9 +176,11 @@ def evaluate(manifest: str, grid: str | None = None, episodes: int | None = None
                                            input_key=key, manifest_hash=made[path]["manifest_hash"],
                                            n_in=len(outcomes), n_out=1, seconds=round(time.perf_counter() - t0, 3),
                                            attrs={"policy": policy.name, "panel_id": panel_id})
-                    run.write(LineageBatch(stage_runs=[stage]).extend(evaluation_lineage(
-                        evaluation_id, result_file, root, body, panel_id, policy, stage.stage_run_id,
-                        made[path]["manifest_hash"])))
+                    batch = evaluation_lineage(evaluation_id, result_file, root, body, panel_id, policy,
+                                               stage.stage_run_id, made[path]["manifest_hash"])
+                    batch.edges += [EdgeRecord(parent_id=c, child_id=evaluation_id, relation="world_model")
+                                    for c in world_checkpoints(run, world_model)]
+                    run.write(LineageBatch(stage_runs=[stage]).extend(batch))
                 body = json.loads(result_file.read_text())
                 results.append((spec.name, policy.name, evaluation_id, body["table"]))
         summary = compare_verdicts(run, results, root)

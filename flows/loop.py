@@ -34,7 +34,7 @@ from tasks.policy.specs import load_policy
 
 STAGE = "post_train_policy"
 # A policy made in-flow when none is given: weak on purpose, so the loop has failures to fix.
-FRESH_DEMOS = 3
+FRESH_DEMOS, FRESH_STEPS = 3, 400
 
 load_manifest = task(manifests.load, name="load-manifest")
 collect = task(bc.collect, name="collect-demonstrations", retries=1, cache_policy=NO_CACHE)
@@ -123,7 +123,7 @@ def generate(derived: ScenarioManifest, path: Path, n: int, root: Path) -> dict:
 def post_train_policy(run: RunContext, parent: ScenarioManifest, old: bc.BCPolicy, old_id: str,
                       derived: list[ScenarioManifest], counts: list[int], post_steps: int, root: Path) -> tuple[str, Path]:
     """The old policy fine-tuned on the derived manifests' demonstrations; a finished one is reused."""
-    config = bc.TrainConfig(steps=post_steps, lr=3e-4)  # a gentler rate: continuing, not starting
+    config = bc.TrainConfig(steps=post_steps)
     digests = [manifest_hash(m) for m in derived]
     key = stable_id(STAGE, old_id, content_hash(config), str(FEATURES_VERSION),
                     *(f"{d}:{n}" for d, n in zip(digests, counts)))
@@ -160,7 +160,7 @@ def summarise(table: list[dict], derived: list[ScenarioManifest], counts: list[i
 
 @flow(name="loop", log_prints=True)
 def loop(manifest: str, policy: str | None = None, grid: str | None = None, episodes: int | None = None,
-         worst: int = 1, new_episodes: int = 4, post_steps: int = 200) -> dict:
+         worst: int = 1, new_episodes: int = 12, post_steps: int = 2000) -> dict:
     """Close the loop once for ``policy`` (``bc:PATH``; default: a weak policy trained here on
     a few demonstrations) on the panel of ``manifest`` over ``grid``: the ``worst`` cells get
     ``new_episodes`` in all, in proportion to their failure rate."""
@@ -173,7 +173,7 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
               "new_episodes": new_episodes, "post_steps": post_steps}
     with recorded_run("loop", settings, parent, source_uri=manifest, params=params) as run:
         if policy is None:
-            policy = "bc:" + train_policy(manifest, episodes=FRESH_DEMOS, steps=post_steps, holdout=0)["folder"]
+            policy = "bc:" + train_policy(manifest, episodes=FRESH_DEMOS, steps=FRESH_STEPS, holdout=0)["folder"]
         old = load_policy(policy)
         if not isinstance(old, bc.BCPolicy):
             raise ValueError(f"policy {policy!r}: the loop post-trains behaviour-cloning policies (bc:PATH)")

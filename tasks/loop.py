@@ -64,7 +64,7 @@ def derive_manifests(parent: ScenarioManifest, grid: StressorGrid, cells: Sequen
 
 
 def post_train(model: BCPolicyNet, demos: Demonstrations, config: TrainConfig) -> tuple[BCPolicyNet, list[dict]]:
-    """Continue training a copy of ``model`` on ``demos`` (seeded). The normalisation statistics
+    """Continue training a copy of ``model`` on ``demos`` (seeded, cosine learning rate). The normalisation statistics
     are kept: the network's inputs and outputs keep the meaning the weights were trained on."""
     torch.manual_seed(config.seed)
     threads = torch.get_num_threads()
@@ -74,6 +74,8 @@ def post_train(model: BCPolicyNet, demos: Demonstrations, config: TrainConfig) -
         obs, act = torch.from_numpy(demos.obs), torch.from_numpy(demos.act)
         target = (act - tuned.act_mean) / tuned.act_std
         optimiser = torch.optim.AdamW(tuned.parameters(), lr=config.lr, weight_decay=1e-4)
+        # The same cosine as train_bc: a policy left at full learning rate acts noisily.
+        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.steps, eta_min=config.lr * 0.05)
         gen = torch.Generator().manual_seed(config.seed)
         history, t0, every = [], time.perf_counter(), max(1, config.steps // 20)
         tuned.train()
@@ -83,6 +85,7 @@ def post_train(model: BCPolicyNet, demos: Demonstrations, config: TrainConfig) -
             optimiser.zero_grad(set_to_none=True)
             loss.backward()
             optimiser.step()
+            schedule.step()
             if step == 1 or step % every == 0 or step == config.steps:
                 history.append({"step": step, "loss": float(loss.item()), "seconds": round(time.perf_counter() - t0, 3)})
         return tuned.eval(), history

@@ -72,6 +72,21 @@ def test_train_pretrains_posttrains_records_lineage_and_skips_on_rerun(prefect_h
     assert {r[1] for r in ancestry} >= {"checkpoint", "episode", "token_shard", "shard", "clip", "manifest"}
     assert lineage_problems(Settings().warehouse_path) == {}
 
+    # A policy evaluated in this world model traces back through it: the failure audit lists the
+    # checkpoints, their token shards, the curated shards and clips, the episode videos and manifests.
+    from flows.evaluate import evaluate
+
+    grid = tmp_path / "grid.yaml"
+    grid.write_text("name: one\ncells: [{name: nominal}]\nepisodes: 1\n")
+    done = evaluate(str(manifest), str(grid), policies=["scripted"], world_model=result["posttrain_checkpoint"],
+                    detector=False)
+    evaluation_id = done["evaluations"][0]["evaluation_id"]
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, rows = wh.query(*audit.bind("failure", {"artifact": evaluation_id}))
+    kinds = {r[1] for r in rows}
+    assert {"panel", "checkpoint", "token_shard", "shard", "clip", "episode_video", "episode", "manifest"} <= kinds
+    assert {post, pre, tok["checkpoint_id"]} <= {r[2] for r in rows if r[1] == "checkpoint"}
+
     again = runner.invoke(app, ["train", str(manifest), "--steps", "3", "--post-steps", "3"])
     assert again.exit_code == 0, again.output
     assert f"pre-trained {pre} (already trained), post-trained {post} (already trained)" in " ".join(again.output.split())
