@@ -54,7 +54,7 @@ def write_derived(derived: list[ScenarioManifest], root: Path) -> list[Path]:
 @task(name="post-train-bc", cache_policy=NO_CACHE)
 def tune(policy: bc.BCPolicy, demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path,
          parent: ScenarioManifest, extra: dict) -> list[dict]:
-    model, history = steps.post_train(policy.model, demos, config)
+    model, history = bc.train_bc(demos, config, start=policy.model)
     bc.save_checkpoint(model, folder, parent, config, extra)
     return history
 

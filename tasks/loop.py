@@ -5,18 +5,14 @@ No Prefect here: `flows/loop.py` wires these into the DAG."""
 
 from __future__ import annotations
 
-import copy
-import time
 from collections.abc import Sequence
 
 import numpy as np
-import torch
 
-from models.bc_policy import BCPolicyNet
 from schemas.manifest import ScenarioManifest
 from schemas.panel import StressorGrid
 from tasks.panels.grid import variant_manifest
-from tasks.policy.bc import Demonstrations, TrainConfig
+from tasks.policy.bc import Demonstrations
 
 # New data must not replay the panel's seeds (seed, seed+1, ...), the demonstrations of
 # train-policy (seed+1000..) or its held-out check (seed+2000..).
@@ -61,36 +57,6 @@ def derive_manifests(parent: ScenarioManifest, grid: StressorGrid, cells: Sequen
                                              "seed": parent.seed + seed_offset,
                                              "description": f"failure cells of {grid.name}"})
     return [variant_manifest(parent, loop_grid, by_name[name]) for name in cells]
-
-
-def post_train(model: BCPolicyNet, demos: Demonstrations, config: TrainConfig) -> tuple[BCPolicyNet, list[dict]]:
-    """Continue training a copy of ``model`` on ``demos`` (seeded, cosine learning rate). The normalisation statistics
-    are kept: the network's inputs and outputs keep the meaning the weights were trained on."""
-    torch.manual_seed(config.seed)
-    threads = torch.get_num_threads()
-    torch.set_num_threads(config.threads)
-    try:
-        tuned = copy.deepcopy(model)
-        obs, act = torch.from_numpy(demos.obs), torch.from_numpy(demos.act)
-        target = (act - tuned.act_mean) / tuned.act_std
-        optimiser = torch.optim.AdamW(tuned.parameters(), lr=config.lr, weight_decay=1e-4)
-        # The same cosine as train_bc: a policy left at full learning rate acts noisily.
-        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.steps, eta_min=config.lr * 0.05)
-        gen = torch.Generator().manual_seed(config.seed)
-        history, t0, every = [], time.perf_counter(), max(1, config.steps // 20)
-        tuned.train()
-        for step in range(1, config.steps + 1):
-            batch = torch.randint(0, obs.shape[0], (min(config.batch_size, obs.shape[0]),), generator=gen)
-            loss = torch.nn.functional.mse_loss(tuned.forward_normalised(obs[batch]), target[batch])
-            optimiser.zero_grad(set_to_none=True)
-            loss.backward()
-            optimiser.step()
-            schedule.step()
-            if step == 1 or step % every == 0 or step == config.steps:
-                history.append({"step": step, "loss": float(loss.item()), "seconds": round(time.perf_counter() - t0, 3)})
-        return tuned.eval(), history
-    finally:
-        torch.set_num_threads(threads)
 
 
 def merge(parts: Sequence[Demonstrations]) -> Demonstrations:

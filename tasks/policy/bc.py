@@ -11,34 +11,33 @@ Checkpoints are safetensors plus a config JSON (`{"bc": BCConfig, "train": Train
 
 from __future__ import annotations
 
+import copy
 import hashlib
 import json
 import math
-import os
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import mujoco
 import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 from scipy import special
 
 import tasks.sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
-import mujoco
 from models.bc_policy import BCConfig, BCPolicyNet, preset
 from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.panel import PanelContract, contract_hash, panel_contract
+from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, write_checkpoint
 from tasks.policy.base import Policy
 from tasks.policy.features import FEATURES_VERSION, arm_features, obs_size
 from tasks.sim.control import MAX_STEP, MAX_YAW_STEP, ArmController, make_controller
 from tasks.sim.episode import rollout
 from tasks.sim.scene import Scene, SimConfig
-
-WEIGHTS_FILE, CONFIG_FILE = "model.safetensors", "config.json"
 
 
 class TrainConfig(BaseModel):
@@ -124,16 +123,22 @@ def collect(manifest: ScenarioManifest, seeds: Sequence[int], noise: float | Non
 
 
 def train_bc(demos: Demonstrations, config: TrainConfig = TrainConfig(),
-             log: Callable[[dict], None] | None = None) -> tuple[BCPolicyNet, list[dict]]:
+             log: Callable[[dict], None] | None = None,
+             start: BCPolicyNet | None = None) -> tuple[BCPolicyNet, list[dict]]:
     """Seeded: the same demonstrations and config give the same weights. MSE on standardised
-    actions; history rows every 1/20 of the run: step, loss, seconds."""
+    actions; history rows every 1/20 of the run: step, loss, seconds. With ``start``, training
+    continues from a copy of it (post-training) and keeps its normalisation statistics, so the
+    network's inputs and outputs keep the meaning its weights were trained on."""
     torch.manual_seed(config.seed)
     threads = torch.get_num_threads()
     torch.set_num_threads(config.threads)
     try:
         obs, act = torch.from_numpy(demos.obs), torch.from_numpy(demos.act)
-        model = BCPolicyNet(preset(config.preset, obs.shape[1]))
-        model.set_statistics(obs, act)
+        if start is not None:
+            model = copy.deepcopy(start)
+        else:
+            model = BCPolicyNet(preset(config.preset, obs.shape[1]))
+            model.set_statistics(obs, act)
         target = (act - model.act_mean) / model.act_std
         optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=1e-4)
         schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.steps, eta_min=config.lr * 0.05)
@@ -163,21 +168,11 @@ def train_bc(demos: Demonstrations, config: TrainConfig = TrainConfig(),
 def save_checkpoint(model: BCPolicyNet, folder: Path, manifest: ScenarioManifest, train: TrainConfig,
                     extra: dict | None = None) -> tuple[Path, Path]:
     """Weights (safetensors) and config JSON, each written atomically."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    weights, config = folder / WEIGHTS_FILE, folder / CONFIG_FILE
-    tmp = folder / f".{WEIGHTS_FILE}.{os.getpid()}.tmp"
-    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp),
-              metadata={"bc": model.config.model_dump_json()})
-    os.replace(tmp, weights)
     contract = panel_contract(manifest)
-    body = {"bc": model.config.model_dump(mode="json"), "train": train.model_dump(mode="json"),
-            "features_version": FEATURES_VERSION, "manifest_hash": manifest_hash(manifest),
-            "contract": contract.model_dump(mode="json"), "contract_hash": contract_hash(contract), **(extra or {})}
-    tmp = folder / f".{CONFIG_FILE}.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(body, indent=2, sort_keys=True))
-    os.replace(tmp, config)
-    return weights, config
+    return write_checkpoint(model, folder, "bc", {
+        "train": train.model_dump(mode="json"), "features_version": FEATURES_VERSION,
+        "manifest_hash": manifest_hash(manifest), "contract": contract.model_dump(mode="json"),
+        "contract_hash": contract_hash(contract), **(extra or {})})
 
 
 def load_checkpoint(folder: Path) -> tuple[BCPolicyNet, dict[str, Any]]:
