@@ -20,12 +20,13 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 
 from models.tokenizer import TokenizerConfig, VideoTokenizer
 from schemas import paths
 from schemas.hashing import stable_id
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord
+from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, write_checkpoint
 from tasks.tokenize.data import Clip, usable_frames
 from tasks.tokenize.train import to_tensor
 
@@ -44,7 +45,6 @@ TOKEN_SCHEMA = pa.schema(
     ],
     metadata={"worldline.token_schema": "1"},
 )
-WEIGHTS_FILE, CONFIG_FILE = "model.safetensors", "config.json"
 
 
 def _sha256(path: Path) -> str:
@@ -53,17 +53,7 @@ def _sha256(path: Path) -> str:
 
 def save_checkpoint(model: VideoTokenizer, folder: Path, extra: dict | None = None) -> tuple[Path, Path]:
     """Weights as safetensors and ``{"tokenizer": config, **extra}`` as JSON, each written atomically."""
-    folder.mkdir(parents=True, exist_ok=True)
-    weights, config = folder / WEIGHTS_FILE, folder / CONFIG_FILE
-    tmp = folder / f".{WEIGHTS_FILE}.{os.getpid()}.tmp"
-    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp),
-              metadata={"tokenizer": model.config.model_dump_json()})
-    os.replace(tmp, weights)
-    body = {"tokenizer": model.config.model_dump(mode="json"), **(extra or {})}
-    tmp = folder / f".{CONFIG_FILE}.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(body, indent=2, sort_keys=True))
-    os.replace(tmp, config)
-    return weights, config
+    return write_checkpoint(model, folder, "tokenizer", extra)
 
 
 def load_checkpoint(folder: Path) -> VideoTokenizer:

@@ -9,33 +9,21 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from collections.abc import Sequence
 from pathlib import Path
 
-from safetensors.torch import load_file, save_file
+from safetensors.torch import load_file
 
 from models.world_model import WorldModel, WorldModelConfig
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord
+from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, write_checkpoint
 
-WEIGHTS_FILE, CONFIG_FILE = "model.safetensors", "config.json"
 METRICS = ("loss", "accuracy")  # history fields recorded as train_<name> per logged step
 
 
 def save_checkpoint(model: WorldModel, folder: Path, extra: dict | None = None) -> tuple[Path, Path]:
     """Weights as safetensors and ``{"world_model": config, **extra}`` as JSON, each written atomically."""
-    folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    weights, config = folder / WEIGHTS_FILE, folder / CONFIG_FILE
-    tmp = folder / f".{WEIGHTS_FILE}.{os.getpid()}.tmp"
-    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp),
-              metadata={"world_model": model.config.model_dump_json()})
-    os.replace(tmp, weights)
-    body = {"world_model": model.config.model_dump(mode="json"), **(extra or {})}
-    tmp = folder / f".{CONFIG_FILE}.{os.getpid()}.tmp"
-    tmp.write_text(json.dumps(body, indent=2, sort_keys=True))
-    os.replace(tmp, config)
-    return weights, config
+    return write_checkpoint(model, folder, "world_model", extra)
 
 
 def read_config(folder: Path) -> dict:
