@@ -275,14 +275,21 @@ def tokenize(
     preset: str = typer.Option("tiny-dv4x8x8", help="tokenizer preset (models/tokenizer.py PRESETS)"),
     steps: int = typer.Option(200, min=1, max=1_000_000, help="training steps"),
     size: int = typer.Option(64, min=8, max=1024, help="frames are centre-cropped and resized to size x size"),
+    crop: Optional[int] = typer.Option(None, min=8, max=1024, help="train on random crops of this side "
+                                                                   "(default: whole frames)"),
+    batch: int = typer.Option(4, min=1, max=256, help="clips per training step"),
 ) -> None:
     """Train a video tokenizer on curated shards and write token shards (Prefect flow `tokenize`)."""
     from models.tokenizer import PRESETS
 
     if preset not in PRESETS:
         _fail(f"--preset: unknown tokenizer preset {preset!r}; known: {', '.join(sorted(PRESETS))}")
-    if size % PRESETS[preset].spatial_compression:
-        _fail(f"--size: {size} is not a multiple of {preset}'s spatial compression {PRESETS[preset].spatial_compression}")
+    for name, side in (("--size", size), ("--crop", crop)):
+        if side is not None and side % PRESETS[preset].spatial_compression:
+            _fail(f"{name}: {side} is not a multiple of {preset}'s spatial compression "
+                  f"{PRESETS[preset].spatial_compression}")
+    if crop is not None and crop > size:
+        _fail(f"--crop: {crop} is larger than --size {size}")
     from flows.tokenize import shard_files
     from flows.tokenize import tokenize as tokenize_flow
 
@@ -290,7 +297,7 @@ def tokenize(
         shard_files(shards, Settings().data_root.resolve())
     except FileNotFoundError as exc:
         _fail(str(exc))
-    result = tokenize_flow(shards, preset, steps, size)
+    result = tokenize_flow(shards, preset, steps, size, batch_size=batch, crop=crop)
     psnr = f", train PSNR {result['final_psnr']:.2f} dB" if result["final_psnr"] is not None else " (already trained)"
     out.print(f"checkpoint {result['checkpoint_id']}{psnr}; {len(result['token_shards'])} new token shards "
               f"from {result['clips']} clips", highlight=False)
@@ -307,6 +314,11 @@ def train(
     steps: int = typer.Option(200, min=1, max=1_000_000, help="pre-training steps"),
     post_steps: int = typer.Option(100, min=1, max=1_000_000, help="post-training steps"),
     camera: Optional[str] = typer.Option(None, help="post-train on this camera only (default: every camera)"),
+    window: Optional[int] = typer.Option(None, min=2, max=64, help="latent frames per training window "
+                                                                   "(default: the preset's max_frames)"),
+    patch: Optional[int] = typer.Option(None, min=1, max=16, help="codes per token side (default: the smallest "
+                                                                  "that keeps a latent frame at 64 tokens or fewer)"),
+    batch: int = typer.Option(8, min=1, max=256, help="windows per training step"),
 ) -> None:
     """Pre-train a world model on token shards, post-train it with actions on episodes (Prefect flow `train`)."""
     from models.world_model import PRESETS
@@ -320,7 +332,8 @@ def train(
 
     try:
         episode_folders(manifest, Settings().data_root.resolve())
-        result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, camera=camera)
+        result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, batch_size=batch, window=window,
+                            camera=camera, patch=patch)
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
     done = {True: "trained", False: "already trained"}

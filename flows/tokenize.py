@@ -99,16 +99,18 @@ def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: flo
 
 @flow(name="tokenize", log_prints=True)
 def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: int = 200, size: int = 64,
-             batch_size: int = 4, seed: int = 0, max_encode_frames: int = 129) -> dict:
-    """Train tokenizer ``preset_name`` for ``steps`` on the clips of ``shards``, then tokenize every shard."""
+             batch_size: int = 4, seed: int = 0, max_encode_frames: int = 129, crop: int | None = None) -> dict:
+    """Train tokenizer ``preset_name`` for ``steps`` on the clips of ``shards`` (on random
+    ``crop`` x ``crop`` windows when given), then tokenize every shard."""
     settings = Settings()
     root = settings.data_root.resolve()
     model_config = preset(preset_name)
-    config = TrainConfig(preset=preset_name, steps=steps, size=size, batch_size=batch_size, seed=seed,
+    config = TrainConfig(preset=preset_name, steps=steps, size=size, batch_size=batch_size, seed=seed, crop=crop,
                          clip_frames=1 + 2 * model_config.temporal_compression, threads=min(2, torch.get_num_threads()))
     files = shard_files(shards, root)
     with recorded_run("tokenize", settings, params={"shards": shards, "preset": preset_name, "steps": steps,
-                                                    "size": size, "batch_size": batch_size, "seed": seed}) as run:
+                                                    "size": size, "batch_size": batch_size, "seed": seed,
+                                                    "crop": crop}) as run:
         known = shard_artifacts(run, files)
         hashes = {mh for *_, mh in known if mh}
         mh = hashes.pop() if len(hashes) == 1 else None

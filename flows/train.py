@@ -203,13 +203,23 @@ def _curve(history: list[dict]) -> str:
         if rows else "skipped: done before"
 
 
+def token_patch(grid_h: int, grid_w: int, max_tokens: int = 64) -> int:
+    """The smallest patch side dividing the latent grid that keeps a frame at ``max_tokens``
+    transformer tokens or fewer (1 for the 8 x 8 grid of 64 x 64 frames, 2 for 16 x 16)."""
+    for q in range(1, min(grid_h, grid_w) + 1):
+        if grid_h % q == 0 and grid_w % q == 0 and (grid_h // q) * (grid_w // q) <= max_tokens:
+            return q
+    return 1
+
+
 @flow(name="train", log_prints=True)
 def train(manifest: str, tokenizer: str | None = None, token_shards: str | None = None, preset_name: str = "tiny-wm",
           pretrain_steps: int = 200, posttrain_steps: int = 100, batch_size: int = 8, window: int | None = None,
-          camera: str | None = None, seed: int = 0) -> dict:
+          camera: str | None = None, seed: int = 0, patch: int | None = None) -> dict:
     """Pre-train world model ``preset_name`` on ``tokenizer``'s token shards (or ``token_shards``),
     then post-train it with actions on the simulated episodes of ``manifest`` (a YAML, an
-    episode folder or a manifest hash), every camera or only ``camera``."""
+    episode folder or a manifest hash), every camera or only ``camera``. ``patch``: codes per
+    token side (default `token_patch`: at most 64 tokens per latent frame)."""
     settings = Settings()
     root = settings.data_root.resolve()
     folders, scenario = episode_folders(manifest, root)
@@ -218,13 +228,14 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                       params={"manifest": manifest, "tokenizer": tokenizer, "token_shards": token_shards,
                               "preset": preset_name, "pretrain_steps": pretrain_steps,
                               "posttrain_steps": posttrain_steps, "batch_size": batch_size, "window": window,
-                              "camera": camera, "seed": seed}) as run:
+                              "camera": camera, "seed": seed, "patch": patch}) as run:
         tok_folder, tok_id, tok_config = tokenizer_checkpoint(run, tokenizer)
         shards, sequences, (grid_h, grid_w), size = token_inputs(run, tok_id, token_shards)
         hashes = {mh for *_, mh in shards if mh}
         pre_mh = hashes.pop() if len(hashes) == 1 else None
         model_config = preset(preset_name, codebook_size=tok_config.codebook_size, max_height=grid_h, max_width=grid_w,
                               temporal_compression=tok_config.temporal_compression,
+                              patch=patch or token_patch(grid_h, grid_w),
                               **({"max_frames": window} if window else {}))
         pre_config = WorldTrainConfig(preset=preset_name, steps=pretrain_steps, batch_size=batch_size, seed=seed,
                                       threads=threads)

@@ -48,6 +48,8 @@ class WorldModelConfig(BaseModel):
     max_frames: int = Field(8, ge=2, description="latent frames in the context window (frame-index embeddings)")
     max_height: int = Field(8, ge=1, description="largest latent grid height H'")
     max_width: int = Field(8, ge=1, description="largest latent grid width W'")
+    patch: int = Field(1, ge=1, description="each transformer token holds a patch x patch block of codes "
+                                            "(embeddings summed per slot; one head per slot predicts them)")
     width: int = Field(64, ge=8, description="model dimension")
     layers: int = Field(2, ge=1)
     heads: int = Field(4, ge=1)
@@ -61,6 +63,8 @@ class WorldModelConfig(BaseModel):
     def _consistent(self) -> "WorldModelConfig":
         if self.width % self.heads:
             raise ValueError(f"width {self.width} is not a multiple of heads {self.heads}")
+        if self.max_height % self.patch or self.max_width % self.patch:
+            raise ValueError(f"grid {self.max_height} x {self.max_width} is not a multiple of patch {self.patch}")
         return self
 
     @property
@@ -133,15 +137,16 @@ class WorldModel(nn.Module):
     def __init__(self, config: WorldModelConfig):
         super().__init__()
         c = self.config = config
-        self.code_embed = nn.Embedding(c.codebook_size, c.width)
-        self.row_embed = nn.Parameter(torch.zeros(c.max_height, c.width))
-        self.col_embed = nn.Parameter(torch.zeros(c.max_width, c.width))
+        slots = c.patch * c.patch
+        self.code_embed = nn.Embedding(slots * c.codebook_size, c.width)  # code k in slot s: row s K + k
+        self.row_embed = nn.Parameter(torch.zeros(c.max_height // c.patch, c.width))
+        self.col_embed = nn.Parameter(torch.zeros(c.max_width // c.patch, c.width))
         self.frame_embed = nn.Parameter(torch.zeros(c.max_frames, c.width))
         self.text_embed = nn.Embedding(c.text_vocab, c.width)
         self.prefix = nn.Parameter(torch.zeros(1, 1, c.width))  # always present: no row attends to nothing
         self.blocks = nn.ModuleList(Block(c) for _ in range(c.layers))
         self.norm = nn.LayerNorm(c.width)
-        self.head = nn.Linear(c.width, c.codebook_size)
+        self.head = nn.Linear(c.width, slots * c.codebook_size)
         self.apply(self._init)
         for p in (self.row_embed, self.col_embed, self.frame_embed, self.prefix):
             nn.init.normal_(p, std=0.02)
@@ -188,8 +193,13 @@ class WorldModel(nn.Module):
         if t > c.max_frames or h > c.max_height or w > c.max_width:
             raise ValueError(f"codes {tuple(codes.shape)} exceed max_frames {c.max_frames} x grid "
                              f"{c.max_height} x {c.max_width}")
-        x = (self.code_embed(codes) + self.frame_embed[:t, None, None] + self.row_embed[:h, None]
-             + self.col_embed[None, :w])
+        q = c.patch
+        if h % q or w % q:
+            raise ValueError(f"codes {tuple(codes.shape)}: grid is not a multiple of patch {q}")
+        gh, gw = h // q, w // q
+        slot = torch.arange(q * q, device=codes.device).view(q * q) * c.codebook_size
+        x = self.code_embed(_patches(codes, q) + slot).sum(-2)  # B x T' x gh x gw x width
+        x = x + self.frame_embed[:t, None, None] + self.row_embed[:gh, None] + self.col_embed[None, :gw]
         if actions is not None:
             if self.action_encoder is None:
                 raise ValueError("actions given to a model without action conditioning (add_action_conditioning)")
@@ -198,8 +208,8 @@ class WorldModel(nn.Module):
             a = self.action_encoder(actions.to(x.dtype))
             x = x + F.pad(a, (0, 0, 0, t - a.shape[1]))[:, :, None, None]
         prefix, real = self._text(text, b, codes.device)
-        p, n = prefix.shape[1], t * h * w
-        frame = torch.arange(t, device=codes.device).repeat_interleave(h * w)
+        p, n = prefix.shape[1], t * gh * gw
+        frame = torch.arange(t, device=codes.device).repeat_interleave(gh * gw)
         allowed = torch.zeros(b, p + n, p + n, dtype=torch.bool, device=codes.device)
         allowed[:, :, :p] = real[:, None, :]  # everyone reads the real prefix tokens
         allowed[:, p:, p:] = frame[None, :, None] >= frame[None, None, :]  # frames <= own frame
@@ -207,7 +217,8 @@ class WorldModel(nn.Module):
         mask = allowed[:, None]
         for block in self.blocks:
             seq = block(seq, mask)
-        return self.head(self.norm(seq[:, p:])).view(b, t, h, w, c.codebook_size)
+        logits = self.head(self.norm(seq[:, p:])).view(b, t, gh, gw, q, q, c.codebook_size)
+        return logits.permute(0, 1, 2, 4, 3, 5, 6).reshape(b, t, h, w, c.codebook_size)
 
     @torch.no_grad()
     def rollout(self, context_codes: torch.Tensor, n: int, text: torch.Tensor | Sequence[str] | None = None,
@@ -238,6 +249,12 @@ class WorldModel(nn.Module):
                 nxt = logits.argmax(dim=-1)
             codes = torch.cat([codes, nxt[:, None]], dim=1)
         return codes[:, c:]
+
+
+def _patches(codes: torch.Tensor, q: int) -> torch.Tensor:
+    """``B x T' x H' x W'`` -> ``B x T' x H'/q x W'/q x q*q``: each q x q block, row-major."""
+    b, t, h, w = codes.shape
+    return codes.view(b, t, h // q, q, w // q, q).permute(0, 1, 2, 4, 3, 5).reshape(b, t, h // q, w // q, q * q)
 
 
 def next_frame_loss(logits: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:

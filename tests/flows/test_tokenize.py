@@ -79,3 +79,7 @@ def test_cli_refuses_bad_tokenize_arguments(tmp_path):
     assert empty.exit_code == 2 and "no shard files" in empty.output
     odd = runner.invoke(app, ["tokenize", str(tmp_path), "--size", "36"])
     assert odd.exit_code == 2 and "spatial compression" in odd.output
+    crop = runner.invoke(app, ["tokenize", str(tmp_path), "--crop", "20"])
+    assert crop.exit_code == 2 and "--crop: 20" in crop.output
+    big = runner.invoke(app, ["tokenize", str(tmp_path), "--crop", "128"])
+    assert big.exit_code == 2 and "larger than --size" in big.output

@@ -49,7 +49,7 @@ def test_shapes_and_round_trip(name):
         assert torch.allclose(again, recon, atol=1e-5)
 
 
-@pytest.mark.parametrize("name", ["tiny-dv4x8x8", "tiny-cv4x8x8", "tiny-dv8x8x8"])
+@pytest.mark.parametrize("name", ["tiny-dv4x8x8", "tiny-cv4x8x8", "tiny-dv8x8x8", "small-dv4x4x4"])
 def test_causal_latents_and_reconstruction(name):
     """Changing frames after t leaves every latent frame that covers only frames <= t unchanged."""
     torch.manual_seed(1)
@@ -121,3 +121,6 @@ def test_bits_per_pixel_and_bad_sizes():
     with pytest.raises(ValueError, match="unknown tokenizer preset"):
         preset("huge")
     assert {"tiny-dv4x8x8", "tiny-cv4x8x8", "tiny-dv8x8x8", "tiny-cv8x8x8"} <= set(PRESETS)
+    fine = preset("small-dv4x4x4")  # the world model's tokenizer for small objects: a 16 x 16 grid at 64
+    assert fine.latent_shape(17, 64, 64) == (5, 16, 16)
+    assert fine.bits_per_pixel(17, 64, 64) == pytest.approx(4 * d.bits_per_pixel(17, 64, 64))
