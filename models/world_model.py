@@ -197,7 +197,7 @@ class WorldModel(nn.Module):
         if h % q or w % q:
             raise ValueError(f"codes {tuple(codes.shape)}: grid is not a multiple of patch {q}")
         gh, gw = h // q, w // q
-        slot = torch.arange(q * q, device=codes.device).view(q * q) * c.codebook_size
+        slot = torch.arange(q * q, device=codes.device) * c.codebook_size
         x = self.code_embed(_patches(codes, q) + slot).sum(-2)  # B x T' x gh x gw x width
         x = x + self.frame_embed[:t, None, None] + self.row_embed[:gh, None] + self.col_embed[None, :gw]
         if actions is not None:
