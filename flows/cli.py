@@ -278,6 +278,12 @@ def tokenize(
     crop: Optional[int] = typer.Option(None, min=8, max=1024, help="train on random crops of this side "
                                                                    "(default: whole frames)"),
     batch: int = typer.Option(4, min=1, max=256, help="clips per training step"),
+    motion_weight: float = typer.Option(0.0, min=0.0, max=100.0, help="extra L1 weight on pixels that change "
+                                                                      "between frames (up to 1 + this)"),
+    focus_crops: int = typer.Option(1, min=1, max=64, help="candidate crops per window; the one that changes "
+                                                           "most is trained on"),
+    init: Optional[str] = typer.Option(None, help="continue from this tokenizer checkpoint (folder or id; "
+                                                  "same preset)"),
 ) -> None:
     """Train a video tokenizer on curated shards and write token shards (Prefect flow `tokenize`)."""
     from models.tokenizer import PRESETS
@@ -297,7 +303,11 @@ def tokenize(
         shard_files(shards, Settings().data_root.resolve())
     except FileNotFoundError as exc:
         _fail(str(exc))
-    result = tokenize_flow(shards, preset, steps, size, batch_size=batch, crop=crop)
+    try:
+        result = tokenize_flow(shards, preset, steps, size, batch_size=batch, crop=crop, motion_weight=motion_weight,
+                               focus_crops=focus_crops, init=init)
+    except (FileNotFoundError, ValueError) as exc:
+        _fail(str(exc))
     psnr = f", train PSNR {result['final_psnr']:.2f} dB" if result["final_psnr"] is not None else " (already trained)"
     out.print(f"checkpoint {result['checkpoint_id']}{psnr}; {len(result['token_shards'])} new token shards "
               f"from {result['clips']} clips", highlight=False)
@@ -319,6 +329,8 @@ def train(
     patch: Optional[int] = typer.Option(None, min=1, max=16, help="codes per token side (default: the smallest "
                                                                   "that keeps a latent frame at 64 tokens or fewer)"),
     batch: int = typer.Option(8, min=1, max=256, help="windows per training step"),
+    change_weight: float = typer.Option(0.0, min=0.0, max=100.0, help="extra loss weight on codes that change "
+                                                                      "from one latent frame to the next"),
 ) -> None:
     """Pre-train a world model on token shards, post-train it with actions on episodes (Prefect flow `train`)."""
     from models.world_model import PRESETS
@@ -333,7 +345,7 @@ def train(
     try:
         episode_folders(manifest, Settings().data_root.resolve())
         result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, batch_size=batch, window=window,
-                            camera=camera, patch=patch)
+                            camera=camera, patch=patch, change_weight=change_weight)
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
     done = {True: "trained", False: "already trained"}

@@ -16,7 +16,7 @@ from flows.report import publish as publish_report
 from models.tokenizer import VideoTokenizer, preset
 from schemas import paths
 from schemas.hashing import content_hash, sha256_file, stable_id
-from schemas.records import ArtifactRecord, LineageBatch, StageRunRecord
+from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, StageRunRecord
 from schemas.settings import Settings
 from tasks.tokenize import data, tokens
 from tasks.tokenize.train import TrainConfig, psnr, to_tensor, train_tokenizer
@@ -60,18 +60,52 @@ def decode_shard(path: Path, root: Path, uri: str, size: int, max_frames: int) -
     return data.shard_clips(path, root, uri, size, max_frames)
 
 
-@task(name="train-tokenizer")
-def train(clips: list[data.Clip], config: TrainConfig, folder: Path, extra: dict) -> tuple[list[dict], int]:
-    """Train from the preset's seeded initial weights, log to TensorBoard beside the checkpoint,
-    save it; returns the history and the parameter count."""
+def init_checkpoint(run: RunContext, init: str, preset_name: str) -> tuple[Path, str]:
+    """(folder, artifact id) of the tokenizer checkpoint to continue from: a checkpoint folder or
+    an id (its first 12+ hex digits) in lineage. It must hold the same preset."""
+    root = run.settings.data_root.resolve()
+    if Path(init).is_dir():
+        folder = Path(init).resolve()
+        if not (folder / tokens.WEIGHTS_FILE).is_file():
+            raise FileNotFoundError(f"{init}: not a tokenizer checkpoint folder (no {tokens.WEIGHTS_FILE})")
+        _, rows = run.warehouse.query("SELECT artifact_id FROM artifacts WHERE kind = 'checkpoint' AND sha256 = $sha "
+                                      "ORDER BY artifact_id LIMIT 1", {"sha": sha256_file(str(folder / tokens.WEIGHTS_FILE))})
+        checkpoint_id = rows[0][0] if rows else stable_id("checkpoint", sha256_file(str(folder / tokens.WEIGHTS_FILE)))
+    else:
+        if len(init) < 12 or not all(ch in "0123456789abcdef" for ch in init):
+            raise FileNotFoundError(f"--init {init}: no such checkpoint folder, and not a checkpoint id (12+ hex digits)")
+        _, rows = run.warehouse.query("SELECT artifact_id, uri FROM artifacts WHERE kind = 'checkpoint' AND "
+                                      "attrs->>'preset' IS NOT NULL AND artifact_id LIKE $prefix || '%' LIMIT 2",
+                                      {"prefix": init})
+        if len(rows) != 1:
+            raise FileNotFoundError(f"--init {init}: {'no' if not rows else 'more than one'} tokenizer checkpoint "
+                                    "with that id in lineage")
+        folder, checkpoint_id = (root / rows[0][1]).parent, rows[0][0]
+    found = tokens.load_checkpoint(folder).config
+    if found != preset(preset_name):
+        raise ValueError(f"--init {folder}: holds tokenizer {found.name!r}, not preset {preset_name!r} "
+                         "(continue training with the same preset)")
+    return folder, checkpoint_id
+
+
+@task(name="train-tokenizer", log_prints=True)
+def train(clips: list[data.Clip], config: TrainConfig, folder: Path, extra: dict,
+          init: Path | None = None) -> tuple[list[dict], int]:
+    """Train from the preset's seeded initial weights (or from checkpoint folder ``init``), log to
+    TensorBoard beside the checkpoint, save it; returns the history and the parameter count."""
     from torch.utils.tensorboard import SummaryWriter
 
     torch.manual_seed(config.seed)
-    model = VideoTokenizer(preset(config.preset))
+    model = tokens.load_checkpoint(init).train() if init else VideoTokenizer(preset(config.preset))
     with SummaryWriter(str(folder / "tensorboard")) as writer:
+        every = max(config.log_every, config.steps // 20 // config.log_every * config.log_every)
+
         def log(record: dict) -> None:
             for name in ("loss", "psnr", "lr"):
                 writer.add_scalar(f"train/{name}", record[name], record["step"])
+            if record["step"] % every == 0:  # about 20 progress lines per run, into the flow run's log
+                print(f"step {record['step']}/{config.steps} ({record['seconds']:.0f} s): loss {record['loss']:.4f}, "
+                      f"train PSNR {record['psnr']:.2f} dB")
         history = train_tokenizer(model, data.frame_arrays(clips), config, log)
     tokens.save_checkpoint(model, folder, {"train": config.model_dump(mode="json"), **extra})
     return history, sum(p.numel() for p in model.parameters())
@@ -99,18 +133,22 @@ def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: flo
 
 @flow(name="tokenize", log_prints=True)
 def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: int = 200, size: int = 64,
-             batch_size: int = 4, seed: int = 0, max_encode_frames: int = 129, crop: int | None = None) -> dict:
+             batch_size: int = 4, seed: int = 0, max_encode_frames: int = 129, crop: int | None = None,
+             motion_weight: float = 0.0, focus_crops: int = 1, init: str | None = None) -> dict:
     """Train tokenizer ``preset_name`` for ``steps`` on the clips of ``shards`` (on random
-    ``crop`` x ``crop`` windows when given), then tokenize every shard."""
+    ``crop`` x ``crop`` windows when given; weighting moving pixels and favouring crops that
+    move when asked; continuing from checkpoint ``init`` when given), then tokenize every shard."""
     settings = Settings()
     root = settings.data_root.resolve()
     model_config = preset(preset_name)
     config = TrainConfig(preset=preset_name, steps=steps, size=size, batch_size=batch_size, seed=seed, crop=crop,
-                         clip_frames=1 + 2 * model_config.temporal_compression, threads=min(2, torch.get_num_threads()))
+                         motion_weight=motion_weight, focus_crops=focus_crops, clip_frames=1 + 2 * model_config.temporal_compression, threads=min(2, torch.get_num_threads()))
     files = shard_files(shards, root)
     with recorded_run("tokenize", settings, params={"shards": shards, "preset": preset_name, "steps": steps,
                                                     "size": size, "batch_size": batch_size, "seed": seed,
-                                                    "crop": crop}) as run:
+                                                    "crop": crop, "motion_weight": motion_weight,
+                                                    "focus_crops": focus_crops, "init": init}) as run:
+        init_folder, init_id = init_checkpoint(run, init, preset_name) if init else (None, None)
         known = shard_artifacts(run, files)
         hashes = {mh for *_, mh in known if mh}
         mh = hashes.pop() if len(hashes) == 1 else None
@@ -118,19 +156,23 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: int = 200, s
         clips = {uri: future.result() for uri, future in decoded.items()}
 
         t0 = time.perf_counter()
-        key = stable_id(STAGE_TRAIN, content_hash(model_config), content_hash(config), *sorted(s for _, _, s, _ in known))
+        key = stable_id(STAGE_TRAIN, content_hash(model_config), content_hash(config), *sorted(s for _, _, s, _ in known),
+                        *([f"init:{init_id}"] if init_id else []))
         checkpoint_id = stable_id("checkpoint", key)
         folder = paths.resolve(root, paths.CHECKPOINT_DIR, model=model_config.name, checkpoint_id=checkpoint_id)
         all_clips = [c for uri in sorted(clips) for c in clips[uri]]
         history: list[dict] = []
         if run.pending(STAGE_TRAIN, [key]) or not (folder / tokens.WEIGHTS_FILE).exists():
-            history, params = train(all_clips, config, folder, {"checkpoint_id": checkpoint_id,
-                                                        "shards": [u for _, u, _, _ in known]})
+            history, params = train(all_clips, config, folder, {"checkpoint_id": checkpoint_id, "init": init_id,
+                                                                "shards": [u for _, u, _, _ in known]}, init_folder)
             stage = _stage(run, STAGE_TRAIN, key, len(all_clips), 1, t0, mh, checkpoint_id=checkpoint_id, steps=steps)
-            run.write(LineageBatch(stage_runs=[stage]).extend(tokens.checkpoint_lineage(
+            batch = LineageBatch(stage_runs=[stage]).extend(tokens.checkpoint_lineage(
                 checkpoint_id, folder, root, [s for _, _, s, _ in known], history, stage.stage_run_id, mh,
                 {"preset": preset_name, "variant": model_config.variant, "steps": steps, "size": size,
-                 "params": params})))
+                 "params": params, "init": init_id}))
+            if init_id:
+                batch.edges.append(EdgeRecord(parent_id=init_id, child_id=checkpoint_id, relation="continued_from"))
+            run.write(batch)
             print(f"trained {preset_name} for {steps} steps in {time.perf_counter() - t0:.1f}s: "
                   f"loss {history[-1]['loss']:.4f}, train PSNR {history[-1]['psnr']:.2f} dB")
 

@@ -215,11 +215,12 @@ def token_patch(grid_h: int, grid_w: int, max_tokens: int = 64) -> int:
 @flow(name="train", log_prints=True)
 def train(manifest: str, tokenizer: str | None = None, token_shards: str | None = None, preset_name: str = "tiny-wm",
           pretrain_steps: int = 200, posttrain_steps: int = 100, batch_size: int = 8, window: int | None = None,
-          camera: str | None = None, seed: int = 0, patch: int | None = None) -> dict:
+          camera: str | None = None, seed: int = 0, patch: int | None = None, change_weight: float = 0.0) -> dict:
     """Pre-train world model ``preset_name`` on ``tokenizer``'s token shards (or ``token_shards``),
     then post-train it with actions on the simulated episodes of ``manifest`` (a YAML, an
     episode folder or a manifest hash), every camera or only ``camera``. ``patch``: codes per
-    token side (default `token_patch`: at most 64 tokens per latent frame)."""
+    token side (default `token_patch`: at most 64 tokens per latent frame). ``change_weight``:
+    extra loss weight on codes that change from one latent frame to the next."""
     settings = Settings()
     root = settings.data_root.resolve()
     folders, scenario = episode_folders(manifest, root)
@@ -228,7 +229,8 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                       params={"manifest": manifest, "tokenizer": tokenizer, "token_shards": token_shards,
                               "preset": preset_name, "pretrain_steps": pretrain_steps,
                               "posttrain_steps": posttrain_steps, "batch_size": batch_size, "window": window,
-                              "camera": camera, "seed": seed, "patch": patch}) as run:
+                              "camera": camera, "seed": seed, "patch": patch,
+                              "change_weight": change_weight}) as run:
         tok_folder, tok_id, tok_config = tokenizer_checkpoint(run, tokenizer)
         shards, sequences, (grid_h, grid_w), size = token_inputs(run, tok_id, token_shards)
         hashes = {mh for *_, mh in shards if mh}
@@ -238,9 +240,10 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                               patch=patch or token_patch(grid_h, grid_w),
                               **({"max_frames": window} if window else {}))
         pre_config = WorldTrainConfig(preset=preset_name, steps=pretrain_steps, batch_size=batch_size, seed=seed,
-                                      threads=threads)
+                                      threads=threads, change_weight=change_weight)
         post_config = WorldTrainConfig(preset=preset_name, steps=posttrain_steps, batch_size=batch_size, seed=seed,
-                                       threads=threads, lr=pre_config.lr / 2, warmup_steps=10)
+                                       threads=threads, lr=pre_config.lr / 2, warmup_steps=10,
+                                       change_weight=change_weight)
 
         # -- pre-training: token sequences with their captions
         t0 = time.perf_counter()

@@ -257,11 +257,19 @@ def _patches(codes: torch.Tensor, q: int) -> torch.Tensor:
     return codes.view(b, t, h // q, q, w // q, q).permute(0, 1, 2, 4, 3, 5).reshape(b, t, h // q, w // q, q * q)
 
 
-def next_frame_loss(logits: torch.Tensor, codes: torch.Tensor) -> torch.Tensor:
+def next_frame_loss(logits: torch.Tensor, codes: torch.Tensor, change_weight: float = 0.0) -> torch.Tensor:
     """Mean cross-entropy (nats) of logits ``B x T' x H' x W' x K`` against codes
-    ``B x T' x H' x W'``: position j is scored on frame j + 1, the last position not at all."""
+    ``B x T' x H' x W'``: position j is scored on frame j + 1, the last position not at all.
+
+    With ``change_weight``, a weighted mean: codes that differ from the same position in the
+    frame before count ``1 + change_weight`` times (what moves, rather than what a copy of
+    the last frame already gets right)."""
     k = logits.shape[-1]
-    return F.cross_entropy(logits[:, :-1].reshape(-1, k), codes[:, 1:].reshape(-1))
+    losses = F.cross_entropy(logits[:, :-1].reshape(-1, k), codes[:, 1:].reshape(-1), reduction="none")
+    if not change_weight:
+        return losses.mean()
+    weights = 1 + change_weight * (codes[:, 1:] != codes[:, :-1]).reshape(-1).to(losses.dtype)
+    return (losses * weights).sum() / weights.sum()
 
 
 def post_trainable(model: WorldModel) -> WorldModel:

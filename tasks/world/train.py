@@ -32,6 +32,7 @@ class WorldTrainConfig(BaseModel):
     min_lr_ratio: float = Field(0.1, ge=0, le=1)
     weight_decay: float = Field(0.01, ge=0)
     text_dropout: float = Field(0.1, ge=0, le=1, description="share of windows trained without their text")
+    change_weight: float = Field(0.0, ge=0, description="extra loss weight on codes that change from the frame before")
     seed: int = 0
     threads: int = Field(2, ge=1)
     log_every: int = Field(10, ge=1)
@@ -112,7 +113,7 @@ def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], conf
         codes, texts, actions = sample_windows(sequences, frames, config.batch_size, gen, with_actions,
                                                config.text_dropout)
         logits = model(codes, texts, actions)
-        loss = next_frame_loss(logits, codes)
+        loss = next_frame_loss(logits, codes, config.change_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)

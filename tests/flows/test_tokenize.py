@@ -7,10 +7,12 @@ from typer.testing import CliRunner
 from flows.cli import app
 from flows.curate import curate
 from flows.tokenize import tokenize
+from models.tokenizer import VideoTokenizer, preset
 from schemas.settings import Settings
 from tasks.manifests import load
 from tasks.mp4 import write_mp4
 from tasks.sim.episode import rollout
+from tasks.tokenize import tokens
 from tests.support import MANIFESTS, lineage_problems
 from warehouse import audit
 from warehouse.store import Warehouse
@@ -69,6 +71,23 @@ def test_tokenize_trains_encodes_and_records_lineage(prefect_harness, data_root,
 
     again = tokenize(mh, "tiny-dv4x8x8", steps=3, size=32, batch_size=2)
     assert again["checkpoint_id"] == result["checkpoint_id"] and not again["trained"] and again["token_shards"] == []
+
+    # Continue training from that checkpoint, with the motion levers on: a new checkpoint that starts from its weights.
+    more = tokenize(mh, "tiny-dv4x8x8", steps=3, size=32, batch_size=2, motion_weight=4.0, focus_crops=2,
+                    init=result["checkpoint_id"][:12])
+    assert more["trained"] and more["checkpoint_id"] != result["checkpoint_id"]
+    first, second = (tokens.load_checkpoint(data_root / r["checkpoint"]).state_dict() for r in (result, more))
+    fresh = VideoTokenizer(preset("tiny-dv4x8x8")).state_dict()
+    assert max((second[k] - first[k]).abs().max().item() for k in first) < 0.01  # 3 warm-up steps away
+    assert max((fresh[k] - first[k]).abs().max().item() for k in first) > 0.05
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, edges = wh.query("SELECT parent_id, relation FROM edges WHERE child_id = $c AND relation = 'continued_from'",
+                            {"c": more["checkpoint_id"]})
+    assert edges == [(result["checkpoint_id"], "continued_from")]
+    with pytest.raises(ValueError, match="not preset 'tiny-cv4x8x8'"):
+        tokenize(mh, "tiny-cv4x8x8", steps=3, size=32, batch_size=2, init=result["checkpoint_id"])
+    with pytest.raises(FileNotFoundError, match="no tokenizer checkpoint with that id"):
+        tokenize(mh, "tiny-dv4x8x8", steps=3, size=32, batch_size=2, init="0123456789ab")
 
 
 def test_cli_refuses_bad_tokenize_arguments(tmp_path):

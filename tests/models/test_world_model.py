@@ -5,6 +5,7 @@ import math
 
 import pytest
 import torch
+import torch.nn.functional as F
 
 from models.world_model import (
     PRESETS, WorldModel, WorldModelConfig, next_frame_loss, post_trainable, preset, text_ids,
@@ -44,6 +45,19 @@ def test_shapes_and_parameter_counts(name):
     full = WorldModel(PRESETS[name])
     assert 1e5 < sum(p.numel() for p in full.parameters()) < 2e6  # a CPU model
     assert math.isclose(next_frame_loss(logits, codes).item(), math.log(K), rel_tol=0.1)  # near uniform at init
+
+
+def test_change_weight_counts_codes_that_change_more():
+    codes = torch.zeros(1, 3, 2, 2, dtype=torch.long)
+    codes[0, 2, 0, 0] = 1  # one code changes between frames 1 and 2
+    logits = torch.zeros(1, 3, 2, 2, 2)
+    logits[..., 0] = 5.0  # confident that nothing changes: wrong on that one code only
+    plain, weighted = next_frame_loss(logits, codes), next_frame_loss(logits, codes, change_weight=7.0)
+    wrong, right = F.cross_entropy(torch.tensor([[5.0, 0.0]]), torch.tensor([1])), F.cross_entropy(
+        torch.tensor([[5.0, 0.0]]), torch.tensor([0]))
+    assert math.isclose(plain.item(), (wrong + 7 * right).item() / 8, rel_tol=1e-5)
+    assert math.isclose(weighted.item(), (8 * wrong + 7 * right).item() / 15, rel_tol=1e-5)
+    assert torch.equal(next_frame_loss(logits, codes, 0.0), plain)
 
 
 def test_refuses_codes_beyond_its_window_and_actions_without_the_encoder():

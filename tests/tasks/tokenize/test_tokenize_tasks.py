@@ -6,7 +6,8 @@ import torch
 
 from models.tokenizer import VideoTokenizer, preset
 from tasks.tokenize import data, tokens
-from tasks.tokenize.train import TrainConfig, psnr, sample_batch, to_tensor, to_uint8, train_tokenizer
+from tasks.tokenize.train import (TrainConfig, change_energy, motion_weights, psnr, reconstruction_loss, sample_batch,
+                                  to_tensor, to_uint8, train_tokenizer)
 from tests.support import scene_frames, write_video
 
 
@@ -53,6 +54,45 @@ def _train(clips, steps=4, seed=0):
     config = TrainConfig(steps=steps, batch_size=2, clip_frames=9, size=32, seed=seed, threads=1, log_every=2,
                          warmup_steps=1)
     return model, train_tokenizer(model, clips, config)
+
+
+def _moving_square(frames: int = 9, side: int = 32) -> np.ndarray:
+    """Grey frames with a white 4 x 4 square moving one pixel right per frame in the top-left corner."""
+    clip = np.full((frames, side, side, 3), 90, np.uint8)
+    for t in range(frames):
+        clip[t, 2:6, 2 + t:6 + t] = 255
+    return clip
+
+
+def test_motion_weights_mark_only_what_moves():
+    x = to_tensor(_moving_square())[None]
+    w = motion_weights(x, 4.0)
+    assert w.shape == (1, 1, 9, 32, 32) and float(w.min()) == 1.0 and float(w.max()) == 5.0
+    moving = w[0, 0] > 1
+    # the square's leading and trailing columns change in every frame, one pixel of spread around them
+    assert moving[:, 1:7].any() and not moving[:, 8:].any() and not moving[:, :, 16:].any()
+    still = to_tensor(np.repeat(_moving_square()[:1], 9, axis=0))[None]
+    assert torch.equal(motion_weights(still, 4.0), torch.ones(1, 1, 9, 32, 32))
+
+
+def test_reconstruction_loss_weights_moving_pixels():
+    x = to_tensor(_moving_square())[None]
+    off_still, off_moving = x.clone(), x.clone()
+    off_still[..., 20:24, 20:24] += 0.5  # an error where nothing moves
+    off_moving[..., 2:6, 2:6] += 0.5  # the same error on the square's path
+    assert reconstruction_loss(x, off_still) == pytest.approx(reconstruction_loss(x, off_moving).item())
+    assert reconstruction_loss(x, off_moving, 4.0) > 2 * reconstruction_loss(x, off_still, 4.0)
+    assert torch.equal(reconstruction_loss(x, off_still, 0.0), (off_still - x).abs().mean())
+
+
+def test_focus_crops_prefer_what_moves():
+    clip = _moving_square(9, 32)
+    def share_on_square(focus):
+        gen = torch.Generator().manual_seed(0)
+        batch = sample_batch([clip], 9, 64, gen, crop=16, focus=focus)
+        return sum(change_energy(to_uint8(b)) > 0 for b in batch) / len(batch)
+    assert change_energy(clip[:, 16:, 16:]) == 0 and change_energy(clip) > 0
+    assert share_on_square(8) > 0.5 > share_on_square(1)
 
 
 def test_training_lowers_the_loss_and_is_deterministic(clips):
