@@ -116,7 +116,9 @@ def prepare(key: str, truth: Truth, camera: PinholeCamera, tokenizer: VideoToken
     """Encode and reconstruct the episode, align its actions, fit both colour models.
 
     A colour model whose fit IoU on its own episode is below `min_fit_iou` is dropped: the
-    package is then too close in colour to something else in this scene to be tracked.
+    package is then too close in colour to something else in this scene to be tracked. The
+    decoded frames' model is fitted on the frames that show at least half the package
+    (`physics.MIN_VISIBLE`): a decoder does not keep the slivers the arm leaves visible.
     """
     t = tokenizer.config.temporal_compression
     codes = encode_frames(tokenizer, truth.frames, size)
@@ -128,14 +130,14 @@ def prepare(key: str, truth: Truth, camera: PinholeCamera, tokenizer: VideoToken
 
     fits = {}
 
-    def fit(name, source):
-        model = None if cover is None else physics.fit_colour_model(source, cover)
+    def fit(name, source, min_visible=0.0):
+        model = None if cover is None else physics.fit_colour_model(source, cover, min_visible=min_visible)
         fits[name] = None if model is None else model.fit_iou
         return model if model is not None and model.fit_iou >= min_fit_iou else None
 
     return Prepared(key=key, frames=frames, codes=codes, recon=recon, actions=actions, cover=cover,
                     package_xyz=truth.package_xyz[:n], top_z=truth.top_z, camera=camera.square(size),
-                    true_colour=fit("true", frames), decoded_colour=fit("decoded", recon), text=text, fit_iou=fits)
+                    true_colour=fit("true", frames), decoded_colour=fit("decoded", recon, physics.MIN_VISIBLE), text=text, fit_iou=fits)
 
 
 def window_starts(latent_frames: int, context: int, horizon: int, stride: int) -> list[int]:

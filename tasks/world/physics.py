@@ -30,6 +30,7 @@ from tasks.world.geometry import PinholeCamera
 METHODS = ("model", "shuffled", "floor", "ceiling")
 THRESHOLDS = tuple(float(t) for t in range(4, 42, 2))  # Lab distances tried when fitting a colour model
 FULL_COVERAGE = 0.99
+MIN_VISIBLE = 0.5  # decoded frames: colour models are fitted on frames showing at least half the package
 
 
 # -- finding the package by colour --------------------------------------------------------
@@ -81,12 +82,17 @@ def locate(frames: np.ndarray, model: ColourModel, lab: np.ndarray | None = None
     return np.stack([_select(m, model.max_area) for m in near])
 
 
-def fit_colour_model(frames: np.ndarray, cover: np.ndarray, thresholds=THRESHOLDS) -> ColourModel | None:
+def fit_colour_model(frames: np.ndarray, cover: np.ndarray, thresholds=THRESHOLDS,
+                     min_visible: float = 0.0) -> ColourModel | None:
     """Fit the reference colour and threshold on frames ``F x H x W x 3`` whose package
     coverage ``F x H x W`` (`coverage`) is known; None if no pixel is fully the package.
 
     Reference: the mean Lab of fully covered pixels. Threshold: the one of `thresholds` with
-    the best mean IoU against ``cover > 0.5`` over the frames where the package shows.
+    the best mean IoU against ``cover > 0.5`` over the frames where the package shows, or
+    with ``min_visible`` where at least that share of it shows (its area against the largest
+    in these frames). Decoded frames are fitted with `MIN_VISIBLE`: when the arm hides all
+    but a sliver a pixel wide, a decoder keeps no sliver an IoU could score, and the fit
+    would then say the colour does not set the package apart when it does.
     """
     lab = to_lab(frames)
     full = cover >= FULL_COVERAGE
@@ -94,8 +100,9 @@ def fit_colour_model(frames: np.ndarray, cover: np.ndarray, thresholds=THRESHOLD
         return None
     ref = tuple(float(v) for v in lab[full].mean(0))
     truth = cover > 0.5
-    shown = truth.reshape(len(truth), -1).any(1)
-    max_area = int(3 * truth.reshape(len(truth), -1).sum(1).max())
+    area = truth.reshape(len(truth), -1).sum(1)
+    shown = (area > 0) & (area >= min_visible * area.max())
+    max_area = int(3 * area.max())
     best = None
     for t in thresholds:
         model = ColourModel(ref, float(t), max_area, 0.0)

@@ -217,6 +217,18 @@ def test_mask_iou_and_centroids_exact():
     assert np.isnan(physics.centroids(a[None] & False)).all()
 
 
+def test_colour_fit_leaves_out_frames_showing_a_sliver():
+    """Frames where an occluder (grey) hides all but a 1 px sliver of the square do not count
+    in a decoded-frame fit's IoU; by default they do, and a blurred sliver drags it down."""
+    frames, masks = _square_frames([6, 6, 6, 6])
+    frames[2:, 10:14, 7:10] = 90  # frames 2 and 3: only column 6 of the square shows
+    masks[2:, 10:14, 7:10] = False
+    frames[2:, 10:14, 6] = (110, 80, 80)  # and it is blurred into the grey, as a decoder leaves it
+    kept = physics.fit_colour_model(frames, masks.astype(float), min_visible=physics.MIN_VISIBLE)
+    every = physics.fit_colour_model(frames, masks.astype(float))
+    assert kept.fit_iou == 1.0 and every.fit_iou < 0.6
+
+
 def test_floor_is_copy_last_frame_exactly():
     """A square moving 1 px per frame: the floor (the last context frame held) is off by h px
     at horizon h, has copy-last-frame's PSNR, and the ceiling (the truth itself) is perfect."""
