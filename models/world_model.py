@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import math
 import re
 from collections.abc import Sequence
 
@@ -58,6 +59,8 @@ class WorldModelConfig(BaseModel):
     text_tokens: int = Field(32, ge=1, description="words kept per text (distinct, in order of appearance)")
     action_dim: int = Field(8, ge=1, description="actions are zero-padded to this many values per control step")
     action_conditioned: bool = Field(False, description="has the action encoder (post-trained)")
+    copy_path: bool = Field(False, description="add a learned gain to the logit of each position's current code "
+                                               "(starting at log K: copy-last-frame at even odds)")
 
     @model_validator(mode="after")
     def _consistent(self) -> "WorldModelConfig":
@@ -147,6 +150,9 @@ class WorldModel(nn.Module):
         self.blocks = nn.ModuleList(Block(c) for _ in range(c.layers))
         self.norm = nn.LayerNorm(c.width)
         self.head = nn.Linear(c.width, slots * c.codebook_size)
+        # Most codes repeat from one latent frame to the next: a copy path lets the transformer
+        # spend itself on what changes instead of first learning to echo its input through the head.
+        self.copy_gain = nn.Parameter(torch.tensor(math.log(c.codebook_size))) if c.copy_path else None
         self.apply(self._init)
         for p in (self.row_embed, self.col_embed, self.frame_embed, self.prefix):
             nn.init.normal_(p, std=0.02)
@@ -218,7 +224,10 @@ class WorldModel(nn.Module):
         for block in self.blocks:
             seq = block(seq, mask)
         logits = self.head(self.norm(seq[:, p:])).view(b, t, gh, gw, q, q, c.codebook_size)
-        return logits.permute(0, 1, 2, 4, 3, 5, 6).reshape(b, t, h, w, c.codebook_size)
+        logits = logits.permute(0, 1, 2, 4, 3, 5, 6).reshape(b, t, h, w, c.codebook_size)
+        if self.copy_gain is not None:
+            logits = logits.scatter_add(-1, codes[..., None], self.copy_gain.expand(b, t, h, w, 1))
+        return logits
 
     @torch.no_grad()
     def rollout(self, context_codes: torch.Tensor, n: int, text: torch.Tensor | Sequence[str] | None = None,
@@ -280,9 +289,9 @@ def post_trainable(model: WorldModel) -> WorldModel:
 PRESETS: dict[str, WorldModelConfig] = {
     # Tests and smoke runs: 0.36M parameters (a third of them the word-hash table); a step on
     # 8 windows of 8 latent frames of 4 x 4 codes costs about 0.07 CPU-seconds.
-    "tiny-wm": WorldModelConfig(name="tiny-wm", width=64, layers=2, heads=4),
+    "tiny-wm": WorldModelConfig(name="tiny-wm", width=64, layers=2, heads=4, copy_path=True),
     # The bench's model: 1.3M parameters; about 1 CPU-second a step on 8 windows of 8 x 8 x 8 codes.
-    "small-wm": WorldModelConfig(name="small-wm", width=128, layers=4, heads=4),
+    "small-wm": WorldModelConfig(name="small-wm", width=128, layers=4, heads=4, copy_path=True),
 }
 
 

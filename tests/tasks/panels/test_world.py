@@ -26,6 +26,7 @@ def checkpoint(tmp_path_factory):
                               max_height=SIZE // 8, max_width=SIZE // 8)).add_action_conditioning()
     with torch.no_grad():  # wake the zero-initialised action encoder so actions change the output
         torch.nn.init.normal_(model.action_encoder.net[2].weight, std=0.5)
+        model.copy_gain.zero_()  # untrained, the copy path would make every rollout repeat its context
     save_checkpoint(model, root / "wm", {"tokenizer": "tok", "size": SIZE})
     return root
 
