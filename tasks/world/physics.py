@@ -95,13 +95,13 @@ def fit_colour_model(frames: np.ndarray, cover: np.ndarray, thresholds=THRESHOLD
     would then say the colour does not set the package apart when it does.
     """
     lab = to_lab(frames)
-    full = cover >= FULL_COVERAGE
-    if not full.any():
-        return None
-    ref = tuple(float(v) for v in lab[full].mean(0))
     truth = cover > 0.5
     area = truth.reshape(len(truth), -1).sum(1)
     shown = (area > 0) & (area >= min_visible * area.max())
+    full = (cover >= FULL_COVERAGE) & shown[:, None, None]  # the reference comes from the same frames
+    if not full.any():
+        return None
+    ref = tuple(float(v) for v in lab[full].mean(0))
     max_area = int(3 * area.max())
     best = None
     for t in thresholds:
