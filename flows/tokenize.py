@@ -61,26 +61,11 @@ def decode_shard(path: Path, root: Path, uri: str, size: int, max_frames: int) -
 
 
 def init_checkpoint(run: RunContext, init: str, preset_name: str) -> tuple[Path, str]:
-    """(folder, artifact id) of the tokenizer checkpoint to continue from: a checkpoint folder or
-    an id (its first 12+ hex digits) in lineage. It must hold the same preset."""
-    root = run.settings.data_root.resolve()
-    if Path(init).is_dir():
-        folder = Path(init).resolve()
-        if not (folder / tokens.WEIGHTS_FILE).is_file():
-            raise FileNotFoundError(f"{init}: not a tokenizer checkpoint folder (no {tokens.WEIGHTS_FILE})")
-        _, rows = run.warehouse.query("SELECT artifact_id FROM artifacts WHERE kind = 'checkpoint' AND sha256 = $sha "
-                                      "ORDER BY artifact_id LIMIT 1", {"sha": sha256_file(str(folder / tokens.WEIGHTS_FILE))})
-        checkpoint_id = rows[0][0] if rows else stable_id("checkpoint", sha256_file(str(folder / tokens.WEIGHTS_FILE)))
-    else:
-        if len(init) < 12 or not all(ch in "0123456789abcdef" for ch in init):
-            raise FileNotFoundError(f"--init {init}: no such checkpoint folder, and not a checkpoint id (12+ hex digits)")
-        _, rows = run.warehouse.query("SELECT artifact_id, uri FROM artifacts WHERE kind = 'checkpoint' AND "
-                                      "attrs->>'preset' IS NOT NULL AND artifact_id LIKE $prefix || '%' LIMIT 2",
-                                      {"prefix": init})
-        if len(rows) != 1:
-            raise FileNotFoundError(f"--init {init}: {'no' if not rows else 'more than one'} tokenizer checkpoint "
-                                    "with that id in lineage")
-        folder, checkpoint_id = (root / rows[0][1]).parent, rows[0][0]
+    """(folder, artifact id) of the tokenizer checkpoint to continue from (a folder or an id in
+    lineage, as `worldline train --tokenizer` takes them); it must hold the same preset."""
+    from flows.train import tokenizer_folder
+
+    folder, checkpoint_id = tokenizer_folder(run, init, variant=None)
     found = tokens.load_checkpoint(folder).config
     if found != preset(preset_name):
         raise ValueError(f"--init {folder}: holds tokenizer {found.name!r}, not preset {preset_name!r} "
@@ -142,7 +127,8 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: int = 200, s
     root = settings.data_root.resolve()
     model_config = preset(preset_name)
     config = TrainConfig(preset=preset_name, steps=steps, size=size, batch_size=batch_size, seed=seed, crop=crop,
-                         motion_weight=motion_weight, focus_crops=focus_crops, clip_frames=1 + 2 * model_config.temporal_compression, threads=min(2, torch.get_num_threads()))
+                         motion_weight=motion_weight, focus_crops=focus_crops,
+                         clip_frames=1 + 2 * model_config.temporal_compression, threads=min(2, torch.get_num_threads()))
     files = shard_files(shards, root)
     with recorded_run("tokenize", settings, params={"shards": shards, "preset": preset_name, "steps": steps,
                                                     "size": size, "batch_size": batch_size, "seed": seed,

@@ -58,14 +58,17 @@ def _known(run: RunContext, kind: str, path: Path, root: Path, attrs: dict) -> t
 def tokenizer_checkpoint(run: RunContext, tokenizer: str | None) -> tuple[Path, str, TokenizerConfig]:
     """(folder, artifact id, config) of a discrete tokenizer checkpoint: a checkpoint folder, a
     checkpoint id (its first 12+ hex digits), or None for the newest one in lineage with token shards."""
-    folder, checkpoint_id = _tokenizer_folder(run, tokenizer)
+    folder, checkpoint_id = tokenizer_folder(run, tokenizer)
     config = tokens.load_checkpoint(folder).config
     if config.variant != "discrete":
         raise ValueError(f"tokenizer {checkpoint_id} is {config.variant}: the world model reads a discrete one's codes")
     return folder, checkpoint_id, config
 
 
-def _tokenizer_folder(run: RunContext, tokenizer: str | None) -> tuple[Path, str]:
+def tokenizer_folder(run: RunContext, tokenizer: str | None, variant: str | None = "discrete") -> tuple[Path, str]:
+    """(folder, artifact id) of a tokenizer checkpoint: a folder (recorded in lineage if new),
+    an id prefix of one of ``variant`` (any variant when None) in lineage, or None for the newest
+    one with token shards."""
     root = run.settings.data_root.resolve()
     if tokenizer and Path(tokenizer).is_dir():
         folder = Path(tokenizer).resolve()
@@ -75,12 +78,14 @@ def _tokenizer_folder(run: RunContext, tokenizer: str | None) -> tuple[Path, str
         return folder, checkpoint_id
     if tokenizer and not _hex(tokenizer):
         raise FileNotFoundError(f"{tokenizer}: no such checkpoint folder, and not a checkpoint id")
-    select = "SELECT artifact_id, uri FROM artifacts WHERE kind = 'checkpoint' AND attrs->>'variant' = 'discrete' AND "
+    which = "attrs->>'preset' IS NOT NULL" if variant is None else f"attrs->>'variant' = '{variant}'"
+    select = f"SELECT artifact_id, uri FROM artifacts WHERE kind = 'checkpoint' AND {which} AND "
     if tokenizer:
         _, rows = run.warehouse.query(select + "artifact_id LIKE $prefix || '%' LIMIT 2", {"prefix": tokenizer})
         if len(rows) != 1:
+            kind = f"{variant} tokenizer" if variant else "tokenizer"
             raise FileNotFoundError(f"tokenizer {tokenizer}: {'no' if not rows else 'more than one'} "
-                                    "discrete tokenizer checkpoint with that id in lineage")
+                                    f"{kind} checkpoint with that id in lineage")
     else:
         _, rows = run.warehouse.query(select + "artifact_id IN (SELECT parent_id FROM edges WHERE relation = "
                                       "'encoded_by') ORDER BY recorded_at DESC, artifact_id LIMIT 1")
