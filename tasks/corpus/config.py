@@ -49,6 +49,11 @@ class CorpusConfig(BaseModel):
     # Simulator segments: rendered small, then scaled up, so memory stays bounded.
     sim_max_width: int = Field(480, ge=32, le=4096)
     sim_max_segment_s: float = Field(10.0, ge=2.5, le=20.0)
+    sim_take_start_s: float = Field(
+        30.0, ge=0.0, le=600.0,
+        description="a take starts at a time drawn from [0, this) of its seed's run: two takes of one scene "
+                    "show different stretches of the task, not the same opening seconds (which, with only the "
+                    "controller noise differing, are the same footage)")
     sim_strip_stressors: tuple[str, ...] = Field(
         ("camera_jitter", "dim_light"),
         description="stressors removed (in a derived manifest): clean footage must neither shake nor be dark")

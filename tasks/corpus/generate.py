@@ -62,7 +62,9 @@ def _content(seg: SegmentPlan, width: int, height: int, fps: float, sims: Sequen
         # Render small and scale each frame up as it is encoded: a 10 s take at 720p would be 830 MB.
         sw = min(width, config.sim_max_width) // 2 * 2
         sh = max(16, round(sw * height / width) // 2 * 2)
-        small = sim_segment(manifest, c.seed % 2**31, n, sw, sh, c.camera, fps, config.sim_max_width)
+        start_s = float(np.random.default_rng([c.seed, 0x7A4E]).uniform(0.0, config.sim_take_start_s))
+        small = sim_segment(manifest, c.seed % 2**31, n, sw, sh, c.camera, fps, config.sim_max_width,
+                            start_s=round(start_s * fps) / fps)
         if (sh, sw) == (height, width):
             return iter(small)
         return (cv2.resize(f, (width, height), interpolation=cv2.INTER_LINEAR) for f in small)

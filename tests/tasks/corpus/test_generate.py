@@ -128,3 +128,24 @@ def test_lineage(corpus):
     assert sorted({a.kind for a in batch.artifacts}) == ["ground_truth", "raw_video"]
     assert sum(e.relation == "labelled_by" for e in batch.edges) == 3
     assert all(not a.uri.startswith("/") for a in batch.artifacts)
+
+
+def test_two_takes_of_one_simulator_scene_are_different_footage():
+    """Takes start at a time their seed draws: from the same start, two seeds of one scene differ
+    only by controller noise, so their opening seconds are the same footage (dedup rightly
+    merged such a pair, against a truth that called them different content)."""
+    from tasks.corpus.generate import default_manifests
+    from tasks.corpus.plan import ContentSpec, SegmentPlan
+
+    sims = default_manifests()
+    index = next(i for i, m in enumerate(sims) if m.name == "mobile-rig-aisle")
+    camera = sims[index].cameras[0].name
+
+    def take(seed, config):
+        spec = ContentSpec(content_id=f"c{seed}", kind="sim", seed=seed, scene="x", manifest=index, camera=camera)
+        seg = SegmentPlan(start=0, end=20, label=None, defect_seed=1, content=spec)
+        return np.stack(list(_content(seg, 64, 36, 30.0, sims, config))).astype(np.float32)
+
+    same_start = CorpusConfig(sim_take_start_s=0.0)
+    assert np.abs(take(11, same_start) - take(12, same_start)).mean() < 1.0
+    assert np.abs(take(11, CorpusConfig()) - take(12, CorpusConfig())).mean() > 5.0

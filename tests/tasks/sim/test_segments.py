@@ -49,3 +49,17 @@ def test_unknown_camera_is_refused():
     manifest = load(MANIFESTS / "conveyor_push.yaml")
     with pytest.raises(ValueError, match="conveyor-push.*'nope'"):
         sim_segment(manifest, 0, 2, 32, 32, camera="nope")
+
+
+def test_take_from_start_s_is_the_same_run_from_later_on():
+    manifest = load(MANIFESTS / "mobile_rig_aisle.yaml").model_copy(update={"stressors": ()})
+    whole = sim_segment(manifest, 5, 40, 40, 24, fps=10)
+    late = sim_segment(manifest, 5, 10, 40, 24, fps=10, start_s=3.0)
+    assert np.array_equal(late, whole[30:])
+    assert not np.array_equal(late, whole[:10])
+
+
+def test_bad_start_is_refused():
+    manifest = load(MANIFESTS / "conveyor_push.yaml")
+    with pytest.raises(ValueError, match="from -1.0 s"):
+        sim_segment(manifest, 3, 2, 40, 24, start_s=-1.0)
