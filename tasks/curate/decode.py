@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Literal
 
 import av
+import cv2
 import numpy as np
 from av.video.reformatter import VideoReformatter
 from pydantic import BaseModel, ConfigDict, Field
@@ -69,10 +70,13 @@ class AnalysisConfig(BaseModel):
     thread_type: Literal["AUTO", "FRAME", "SLICE", "NONE"] = "AUTO"
     threads: int = Field(0, ge=0, le=64, description="decoder threads; 0 lets FFmpeg choose")
     interpolation: Literal["AREA", "BILINEAR", "FAST_BILINEAR", "BICUBIC"] = "AREA"
-    # H.264 deblocking is a third of decode time and changes a 256-px analysis frame by
-    # about one grey level on 0..255 (measured on corpus-like 720p at crf 23), so analysis
-    # skips it; clips are always encoded from fully decoded frames.
-    skip_loop_filter: bool = True
+    # H.264 deblocking is about a sixth of decode time. Skipped on every frame ("all"), its
+    # error drifts through each group of pictures: a softly encoded copy of a clip came out
+    # blocky enough to fail dedup's pixel check (residual 14.5 against 4.0 fully decoded).
+    # Skipped on frames no other frame predicts from ("noref", most B-frames) it cannot drift,
+    # and it still saves two thirds of the deblocking time (2.04 against 2.29 ms per 720p
+    # frame on one thread; "all" 1.93). Clips are always encoded from fully decoded frames.
+    skip_loop_filter: Literal["none", "noref", "all"] = "noref"
 
 
 @dataclass(frozen=True, slots=True)
@@ -278,8 +282,8 @@ def analysis_frames(
         stream = container.streams.video[0]
         stream.thread_type = config.thread_type
         stream.thread_count = config.threads
-        if config.skip_loop_filter:
-            stream.codec_context.options = {"skip_loop_filter": "all"}
+        if config.skip_loop_filter != "none":
+            stream.codec_context.options = {"skip_loop_filter": config.skip_loop_filter}
         tb = stream.time_base
         start = stream.start_time or 0
         reformatter = VideoReformatter()
@@ -306,8 +310,11 @@ def analysis_frames(
                 report.corrupt += 1
                 return None
             last_time = time
-            small = reformatter.reformat(frame, sw, sh, "rgb24", interpolation=config.interpolation)
-            image = small.to_ndarray()
+            # libswscale's bgr24 output is both faster than its rgb24 (0.46 against 0.70 ms for
+            # 720p to 256 px) and nearer a float BT.601 conversion (mean error 1.3 against 1.8
+            # levels); cv2 swaps the channels back in microseconds.
+            small = reformatter.reformat(frame, sw, sh, "bgr24", interpolation=config.interpolation)
+            image = cv2.cvtColor(small.to_ndarray(), cv2.COLOR_BGR2RGB)
             if turns:
                 image = np.ascontiguousarray(np.rot90(image, k=turns))
             report.frames += 1

@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import av
+from av.video.frame import PictureType
 import cv2
 import numpy as np
 import pytest
@@ -177,3 +178,20 @@ def test_real_footage_decodes_fully():
     frames = list(analysis_frames(path, info=info))
     assert len(frames) == info.n_frames == 250
     assert frames[0].image.shape == (109, 256, 3)
+
+
+def test_skipping_deblocking_on_unreferenced_frames_cannot_drift(make_video):
+    """"noref" leaves every frame another frame predicts from (all I and P frames) exactly as
+    the full decode has it; "all" lets the error of the skipped deblocking spread into them."""
+    rng = np.random.default_rng(3)
+    texture = cv2.resize(rng.integers(0, 256, (30, 40, 3)).astype(np.uint8), (320, 240), interpolation=cv2.INTER_CUBIC)
+    path = make_video((np.roll(texture, 2 * i, axis=1) for i in range(60)), crf=34)
+    with av.open(str(path)) as container:
+        kinds = [PictureType(frame.pict_type).name for frame in container.decode(video=0)]
+    assert "B" in kinds and "P" in kinds
+    decoded = {mode: [f.image for f in analysis_frames(path, AnalysisConfig(long_side=320, skip_loop_filter=mode))]
+               for mode in ("none", "noref", "all")}
+    anchors = [i for i, kind in enumerate(kinds) if kind in "IP"]
+    assert all(np.array_equal(decoded["noref"][i], decoded["none"][i]) for i in anchors)
+    assert any(not np.array_equal(decoded["noref"][i], decoded["none"][i]) for i in range(len(kinds)))
+    assert any(not np.array_equal(decoded["all"][i], decoded["none"][i]) for i in anchors if kinds[i] == "P")
