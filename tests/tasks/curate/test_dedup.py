@@ -255,3 +255,37 @@ def test_signature_layout_and_bad_input():
         signature(frames[:0])
     with pytest.raises(ValueError, match="clip a: signature shapes .* another config"):
         group({"a": sig, "b": signature(frames)}, {})
+
+
+def test_a_dark_edge_on_one_side_is_picture_but_bars_in_pairs_are_cut():
+    rng = np.random.default_rng(7)
+    frames = rng.integers(60, 200, (3, 72, 128)).astype(np.uint8)
+    one_side = frames.copy()
+    one_side[:, :4], one_side[:, :, :6] = 14, 14  # a dim top and left border: no letterbox
+    assert dedup._content_box(one_side, 24) == (0, 72, 0, 128)
+    boxed = frames.copy()
+    boxed[:, :9], boxed[:, -8:] = 0, 0  # bars top and bottom: cut to the narrower
+    assert dedup._content_box(boxed, 24) == (8, 64, 0, 128)
+
+
+def test_a_darkened_copy_of_a_shot_with_a_dim_border_is_found(corpus):
+    frames = corpus["arm0"][0].astype(np.int16)
+    frames[:, :6] = np.minimum(frames[:, :6], 30)  # a dim border the copy pushes under bar_level
+    frames[:, :, :8] = np.minimum(frames[:, :, :8], 30)
+    original = np.clip(frames, 0, 255).astype(np.uint8)
+    copy = brightness(original, -14)
+    result = group({"a": signature(original), "b": signature(copy)}, {})
+    assert result.removed == {"b": "a"}
+
+
+def test_takes_that_differ_at_one_sampled_moment_are_not_copies(corpus):
+    """Two takes of a task on repeat can match at most sampled moments: a forklift passing
+    through one of them still makes them different footage."""
+    frames = corpus["arm1"][0]
+    other = frames.copy()
+    other[-T // 5:, 40:70, 170:210] = (210, 160, 20)  # something crosses during the last fifth
+    sa, sb = signature(frames), signature(other)
+    per_frame = dedup._residual(sa.thumbs[:, 2].astype(np.float32), sb.thumbs.astype(np.float32),
+                                dedup._crop_matrix(DedupConfig().crops[0], 32)).min(axis=1)
+    assert per_frame.mean() <= DedupConfig().residual_max < per_frame.max()  # a mean would merge them
+    assert group({"a": sa, "b": sb}, {}).removed == {}
