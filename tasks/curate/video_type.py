@@ -17,7 +17,7 @@ edges. Measured on ``n_samples`` frames inside the letterbox:
   projection (edges running through the whole picture);
 - ``saturated``: fraction of strongly saturated pixels (colour bars);
 - ``still``: fraction of pixels that never change over the sampled frames; ``change``:
-  median fraction that changes between consecutive samples (slides barely do).
+  median fraction that changes from a sampled frame to the next frame (slides barely do).
 
 A small decision list maps these to a type; the allow/block lists say which types pass.
 """
@@ -53,12 +53,23 @@ class VideoTypeConfig(FilterConfig):
     steps_colours: float = 16.0  # grey steps and ramps: a dozen shades, frozen, axis-aligned
     steps_still: float = 0.97
     steps_axis: float = 0.55
-    slides_change: float = 0.01  # drawn and changing less between samples: slides
+    # Drawn and (nearly) never changing from one frame to the next: slides. On the tuning seeds
+    # every deck measured 0 and the slowest cartoon 0.007.
+    slides_change: float = 0.002
     # A page held on screen: mostly flat fills, nothing changing between samples, and a palette
     # that anti-aliased text on a coloured ground widens past drawn_colours but that stays far
     # below footage's (a frozen camera shot keeps its shading: dozens of colours, little flat).
     page_colours: float = 20.0
     page_flat: float = 0.6  # slides measured 0.67-0.74; a flat-shaded sim render (aloha) 0.56
+    page_crisp: float = 0.25  # a still dark shot is as flat with as few colours, but soft (crisp 0.0)
+    # A held page whose text is finer still (more anti-aliased shades, less flat): what gives it
+    # away is that nearly every pixel that is not flat sits on a hard edge. On the tuning seeds
+    # slides measured crisp 0.64-0.82 at 7-25 colours; footage of at most 40 colours and half
+    # flat at most 0.38 (a frozen shot 0.23, a dark one 0.0), and no footage at all reached
+    # crisp 0.6 and half flat with fewer than 114 colours.
+    deck_colours: float = 40.0
+    deck_flat: float = 0.5
+    deck_crisp: float = 0.55
     # A moving cartoon with shaded or anti-aliased fills has a dozen colours or more, but it is
     # still mostly flat and its non-flat pixels are hard fill boundaries. Underexposed footage is
     # as flat with as few colours, but its edges are soft (crisp 0.0 against 0.34-0.46).
@@ -131,8 +142,11 @@ def classify(scores: dict[str, float], config: VideoTypeConfig) -> str:
             and scores["axis_edges"] >= config.steps_axis))
     if pattern:
         return "test_pattern"
-    page = (scores["colours"] <= config.page_colours and scores["flat"] >= config.page_flat
-            and scores["change"] <= config.slides_change)
+    held = scores["change"] <= config.slides_change
+    page = held and ((scores["colours"] <= config.page_colours and scores["flat"] >= config.page_flat
+                      and scores["crisp"] >= config.page_crisp)
+                     or (scores["colours"] <= config.deck_colours and scores["flat"] >= config.deck_flat
+                         and scores["crisp"] >= config.deck_crisp))
     cartoon = (scores["colours"] <= config.cartoon_colours and scores["flat"] >= config.cartoon_flat
                and scores["crisp"] >= config.cartoon_crisp)
     if scores["colours"] <= config.drawn_colours or page or cartoon:
@@ -148,13 +162,18 @@ def judge(frames: np.ndarray, times: np.ndarray, config: VideoTypeConfig) -> Ver
     if not config.enabled:
         return Verdict(keep=True)
     check_frames(frames, times)
-    picked = frames[sample_indices(len(frames), config.n_samples)]
+    index = sample_indices(len(frames), config.n_samples)
+    picked = frames[index]
     top, bottom, left, right = active_box(picked)
     picked = picked[:, top:bottom, left:right]
     features = np.array([frame_features(f, config) for f in picked])
     grey = _channel_max(picked).astype(np.int16)
     still = float(((grey.max(axis=0) - grey.min(axis=0)) <= 6).mean())
-    change = float(np.median((np.abs(np.diff(grey, axis=0)) > 6).mean(axis=(1, 2))))
+    # Change from each sample to the frame after it: a deck changes in rare jumps, a cartoon
+    # every frame (samples seconds apart would see every slide change of a quick deck).
+    after = _channel_max(frames[np.minimum(index + 1, len(frames) - 1), top:bottom, left:right]).astype(np.int16)
+    steps = index + 1 < len(frames)
+    change = float(np.median((np.abs(after - grey) > 6)[steps].mean(axis=(1, 2)))) if steps.any() else 0.0
     scores = dict(zip(("flat", "colours", "axis_edges", "lines", "saturated", "crisp"), map(float, np.median(features, axis=0))))
     scores["still"] = still
     scores["change"] = change
@@ -164,7 +183,9 @@ def judge(frames: np.ndarray, times: np.ndarray, config: VideoTypeConfig) -> Ver
                    scores={f"type_{k}": v for k, v in scores.items()}, tags=(f"type:{kind}",))
 
 
-def looks_drawn(frames: np.ndarray, times: np.ndarray, n_samples: int = 4) -> bool:
-    """Whether the default video-type rules call a scene anything but physical footage, from a
-    few samples: the other filters leave exposure and stillness of drawn pages to this one."""
-    return "type:physical" not in judge(frames, times, VideoTypeConfig(n_samples=n_samples)).tags
+def looks_drawn(frames: np.ndarray, times: np.ndarray) -> bool:
+    """Whether the default video-type rules call a scene anything but physical footage: the
+    other filters leave exposure and stillness of drawn pages to this one. The same samples as
+    the filter's own verdict (with fewer, a deck the filter rejects as slides could still read
+    as footage here, and be rejected twice: as static and as slides)."""
+    return "type:physical" not in judge(frames, times, VideoTypeConfig()).tags

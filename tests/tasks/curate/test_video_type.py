@@ -132,6 +132,14 @@ def test_held_page_with_a_wider_palette_is_slides_but_frozen_footage_is_not():
     assert classify({**base, "colours": cfg.page_colours + 1}, cfg) == "physical"
     assert classify({**base, "flat": cfg.page_flat - 0.01}, cfg) == "physical"
     assert classify({**base, "change": 0.2}, cfg) == "physical"  # a moving dark scene of a few tones
+    assert classify({**base, "crisp": 0.0}, cfg) == "physical"  # a still dark scene: soft edges
+    # Finer text: more shades and less flat, but every non-flat pixel on a hard edge.
+    deck = {**base, "colours": 26.0, "flat": 0.57, "crisp": 0.7}
+    assert classify(deck, cfg) == "slides"
+    assert classify({**deck, "crisp": 0.4}, cfg) == "physical"  # a frozen shot's edges are soft
+    assert classify({**deck, "colours": cfg.deck_colours + 1}, cfg) == "physical"
+    assert classify({**deck, "flat": cfg.deck_flat - 0.01}, cfg) == "physical"
+    assert classify({**deck, "change": 0.2}, cfg) == "physical"
 
 
 def shaded_cartoon() -> np.ndarray:
@@ -196,3 +204,16 @@ def test_frame_features_equal_the_reference(real_frames):
     stack = np.stack(pictures[-5:-1])
     assert np.array_equal(_channel_max(stack), stack.max(axis=3))
     assert np.array_equal(_channel_max(pictures[-1]), pictures[-1].max(axis=2))
+
+
+def test_a_quick_deck_is_slides_even_when_every_sample_shows_another_slide():
+    """Slides every 8 frames, samples about 8 frames apart: consecutive samples all differ, but
+    each sample and the frame after it are the same slide."""
+    frames = np.empty((T, H, W, 3), np.uint8)
+    for t in range(T):
+        frames[t] = (246, 244, 238)
+        cv2.putText(frames[t], f"Slide {t // 8}", (14, 30), cv2.FONT_HERSHEY_DUPLEX, 0.8, (20, 20, 60), 2, cv2.LINE_AA)
+        cv2.rectangle(frames[t], (20 + 12 * (t // 8), 60), (80 + 12 * (t // 8), 120), (0, 84, 147), -1)
+    verdict = judge(frames, TIMES, VideoTypeConfig())
+    assert verdict.scores["type_change"] <= VideoTypeConfig().slides_change
+    assert verdict.reason == "non_physical:slides", verdict.scores
