@@ -2,7 +2,7 @@
 
     .venv/bin/python bench/tokenizer.py [--budget-min 30] [--variants small-dv4x8x8,small-cv4x8x8]
 
-Renders a manifest's episodes (--manifest, default ``conveyor_push``; every camera) with MuJoCo (training seeds manifest.seed + i, held-out
+Renders a manifest's episodes (--manifest, default ``mobile_rig_aisle``; every camera) with MuJoCo (training seeds manifest.seed + i, held-out
 seeds 1000 + i), downscales them to --size, trains each variant for --budget-min minutes of
 training time (evaluation pauses the clock) and prints, per variant and per x264 CRF: bits per
 pixel, PSNR and SSIM on the held-out clips (--clip-frames frames each), H.264's PSNR and SSIM
@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from models.tokenizer import VideoTokenizer, preset  # noqa: E402
 from tasks.tokenize.train import TrainConfig, to_tensor, train_tokenizer  # noqa: E402
 
-MANIFEST = Path(__file__).resolve().parents[1] / "manifests" / "conveyor_push.yaml"
+MANIFEST = Path(__file__).resolve().parents[1] / "manifests" / "mobile_rig_aisle.yaml"
 CRFS = (10, 16, 20, 24, 28, 32, 36, 40, 44, 48, 51)
 
 
@@ -224,11 +224,11 @@ def main() -> None:
     ap.add_argument("--manifest", type=Path, default=MANIFEST, help="scenario whose episodes (every camera) are the clips")
     ap.add_argument("--size", type=int, default=64)
     ap.add_argument("--clip-frames", type=int, default=17)
-    ap.add_argument("--train-episodes", type=int, default=8)
-    ap.add_argument("--heldout-episodes", type=int, default=2)
+    ap.add_argument("--train-episodes", type=int, default=32)
+    ap.add_argument("--heldout-episodes", type=int, default=4)
     ap.add_argument("--batch", type=int, default=4)
-    ap.add_argument("--crop", type=int, default=32, help="train on random crops of this side (0: whole frames); "
-                    "4x more steps in the budget on a shared CPU")
+    ap.add_argument("--crop", type=int, default=0, help="train on random crops of this side (0: whole frames, the "
+                    "default: crops train the lowest level's attention on smaller grids than held-out frames give it)")
     ap.add_argument("--lr", type=float, default=2e-3)
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--curve-points", type=int, default=6)
