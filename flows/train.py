@@ -30,6 +30,9 @@ from tasks.world.train import WorldTrainConfig, train_world_model
 from tasks.world.train import posttrain as posttrain_model
 
 STAGE_PRETRAIN, STAGE_POSTTRAIN = "pretrain_world_model", "posttrain_world_model"
+# Bumped when post-training learns something different from the same inputs, so an earlier
+# checkpoint is not taken for a finished one. 2: actions divided by their RMS (action_scale).
+POSTTRAIN_RECIPE = 2
 
 
 def _hex(text: str) -> bool:
@@ -278,7 +281,8 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
         episode_hashes = {mh for *_, mh in episodes if mh}
         post_mh = run.manifest_hash or (episode_hashes.pop() if len(episode_hashes) == 1 else None)
         episode_ids = sorted(e for _, e, _ in episodes)
-        pkey = stable_id(STAGE_POSTTRAIN, pre_id, _meaning(post_config), camera or "*", *episode_ids)
+        pkey = stable_id(STAGE_POSTTRAIN, f"recipe {POSTTRAIN_RECIPE}", pre_id, _meaning(post_config), camera or "*",
+                         *episode_ids)
         post_id = stable_id("checkpoint", pkey)
         post_folder = paths.resolve(root, paths.CHECKPOINT_DIR, model=model_config.name, checkpoint_id=post_id)
         post_history: list[dict] = []

@@ -59,6 +59,9 @@ class WorldModelConfig(BaseModel):
     text_tokens: int = Field(32, ge=1, description="words kept per text (distinct, in order of appearance)")
     action_dim: int = Field(8, ge=1, description="actions are zero-padded to this many values per control step")
     action_conditioned: bool = Field(False, description="has the action encoder (post-trained)")
+    action_scale: tuple[float, ...] | None = Field(
+        None, description="action_dim divisors applied before the action encoder (post-training sets each to the "
+                          "root mean square of that action value over its episodes); None: 1")
     copy_path: bool = Field(False, description="add a learned gain to the logit of each position's current code "
                                                "(starting at log K: copy-last-frame at even odds)")
 
@@ -68,6 +71,9 @@ class WorldModelConfig(BaseModel):
             raise ValueError(f"width {self.width} is not a multiple of heads {self.heads}")
         if self.max_height % self.patch or self.max_width % self.patch:
             raise ValueError(f"grid {self.max_height} x {self.max_width} is not a multiple of patch {self.patch}")
+        if self.action_scale is not None and (len(self.action_scale) != self.action_dim
+                                              or not all(v > 0 and math.isfinite(v) for v in self.action_scale)):
+            raise ValueError(f"action_scale needs {self.action_dim} positive finite values, got {self.action_scale}")
         return self
 
     @property
@@ -115,10 +121,17 @@ class Block(nn.Module):
 class ActionEncoder(nn.Module):
     """``B x S x action_features`` -> ``B x S x width``; the last layer starts at zero, so a
     model that gains this encoder computes exactly what it computed without it (ControlNet's
-    zero initialisation, Zhang et al., arXiv:2302.05543)."""
+    zero initialisation, Zhang et al., arXiv:2302.05543).
+
+    Each action value is first divided by its ``config.action_scale`` (every slot alike), so
+    end-effector steps of a few millimetres reach the first layer at unit size rather than
+    vanishing under its initial weights. Dividing, not standardising, keeps an empty slot at 0.
+    """
 
     def __init__(self, c: WorldModelConfig):
         super().__init__()
+        scale = torch.tensor(c.action_scale or (1.0,) * c.action_dim, dtype=torch.float32)
+        self.register_buffer("scale", scale.repeat(c.temporal_compression), persistent=False)
         self.net = nn.Sequential(nn.Linear(c.action_features, c.width), nn.SiLU(), nn.Linear(c.width, c.width))
         nn.init.normal_(self.net[0].weight, std=0.02)
         nn.init.zeros_(self.net[0].bias)
@@ -126,7 +139,7 @@ class ActionEncoder(nn.Module):
         nn.init.zeros_(self.net[2].bias)
 
     def forward(self, actions: torch.Tensor) -> torch.Tensor:
-        return self.net(actions)
+        return self.net(actions / self.scale)
 
 
 class WorldModel(nn.Module):
@@ -165,11 +178,14 @@ class WorldModel(nn.Module):
         if isinstance(module, nn.Linear) and module.bias is not None:
             nn.init.zeros_(module.bias)
 
-    def add_action_conditioning(self) -> "WorldModel":
+    def add_action_conditioning(self, action_scale: Sequence[float] | None = None) -> "WorldModel":
         """Add a zero-initialised action encoder in place (post-training); outputs are unchanged
-        until it trains. The config becomes ``action_conditioned=True``."""
+        until it trains. The config becomes ``action_conditioned=True`` with ``action_scale``
+        (``action_dim`` divisors, see ``action_scale``; None: 1)."""
         if self.action_encoder is None:
-            self.config = WorldModelConfig.model_validate({**self.config.model_dump(), "action_conditioned": True})
+            scale = None if action_scale is None else tuple(float(v) for v in action_scale)
+            self.config = WorldModelConfig.model_validate(
+                {**self.config.model_dump(), "action_conditioned": True, "action_scale": scale})
             self.action_encoder = ActionEncoder(self.config)
         return self
 
@@ -281,9 +297,25 @@ def next_frame_loss(logits: torch.Tensor, codes: torch.Tensor, change_weight: fl
     return (losses * weights).sum() / weights.sum()
 
 
-def post_trainable(model: WorldModel) -> WorldModel:
+def post_trainable(model: WorldModel, action_scale: Sequence[float] | None = None) -> WorldModel:
     """A copy of a pre-trained model with the zero-initialised action encoder added."""
-    return copy.deepcopy(model).add_action_conditioning()
+    return copy.deepcopy(model).add_action_conditioning(action_scale)
+
+
+def action_scale(actions: Sequence, action_dim: int, temporal_compression: int,
+                 floor: float = 1e-6) -> tuple[float, ...]:
+    """Per action value, the root mean square over every slot of ``actions`` (arrays or tensors
+    ``S x (temporal_compression x action_dim)``, as ``tasks/world/data.align_actions`` makes
+    them; None entries are skipped), or 1 for a value that is always 0 (the zero padding).
+    LeRobot likewise normalises actions with dataset statistics (mean and standard deviation)
+    before a policy sees them; an RMS without centring keeps "no action" at 0."""
+    rows = [torch.as_tensor(a, dtype=torch.float64).reshape(-1, temporal_compression, action_dim)
+            for a in actions if a is not None and len(a)]
+    if not rows:
+        return (1.0,) * action_dim
+    values = torch.cat(rows).reshape(-1, action_dim)
+    rms = values.pow(2).mean(0).sqrt()
+    return tuple(float(v) if v > floor else 1.0 for v in rms)
 
 
 PRESETS: dict[str, WorldModelConfig] = {

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from models.world_model import WorldModel, next_frame_loss, post_trainable
+from models.world_model import WorldModel, action_scale, next_frame_loss, post_trainable
 from tasks.world.data import CodeSequence
 
 
@@ -142,7 +142,9 @@ def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], conf
 def posttrain(pretrained: WorldModel, episodes: Sequence[CodeSequence], config: WorldTrainConfig,
               on_log: Callable[[dict], None] | None = None) -> tuple[WorldModel, list[dict]]:
     """A copy of the pre-trained model with a zero-initialised action encoder (so it starts out
-    computing exactly what the pre-trained model does), trained on episodes with their actions."""
+    computing exactly what the pre-trained model does), trained on episodes with their actions,
+    each action value divided by its root mean square over these episodes (``action_scale``)."""
     torch.manual_seed(config.seed)
-    model = post_trainable(pretrained)
+    c = pretrained.config
+    model = post_trainable(pretrained, action_scale([e.actions for e in episodes], c.action_dim, c.temporal_compression))
     return model, train_world_model(model, episodes, config, on_log)

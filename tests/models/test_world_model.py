@@ -8,7 +8,7 @@ import torch
 import torch.nn.functional as F
 
 from models.world_model import (
-    PRESETS, WorldModel, WorldModelConfig, next_frame_loss, post_trainable, preset, text_ids,
+    PRESETS, WorldModel, WorldModelConfig, action_scale, next_frame_loss, post_trainable, preset, text_ids,
 )
 
 torch.set_num_threads(1)
@@ -130,6 +130,27 @@ def test_zero_initialised_action_encoder_reproduces_the_pretrained_logits_exactl
     loss = next_frame_loss(post(codes, texts, _actions(post)), codes)
     loss.backward()
     assert post.action_encoder.net[2].weight.grad.abs().sum() > 0
+
+
+def test_action_scale_is_the_rms_of_each_value_and_divides_before_the_encoder():
+    t, d = PRESETS["tiny-wm"].temporal_compression, PRESETS["tiny-wm"].action_dim
+    rows = torch.zeros(6, t, d)
+    rows[:, :, 0] = 0.003 * torch.tensor([1.0, -1.0]).repeat(3)[:, None]
+    rows[:, :, 1] = 1.0  # a gripper held closed
+    scale = action_scale([rows[:4].reshape(4, t * d).numpy(), rows[4:].reshape(2, t * d)], d, t)
+    assert scale[0] == pytest.approx(0.003) and scale[1] == 1.0 and scale[2:] == (1.0,) * (d - 2)  # padding: 1
+    assert action_scale([None], d, t) == (1.0,) * d
+    plain, scaled = _wake(post_trainable(_model())), post_trainable(_model(), scale)
+    scaled.action_encoder.load_state_dict(plain.action_encoder.state_dict())
+    assert scaled.config.action_scale == scale and "scale" not in scaled.state_dict()  # in config.json instead
+    codes, actions = _codes(), _actions(plain)
+    divided = actions / torch.tensor(scale, dtype=torch.float32).repeat(t)
+    with torch.no_grad():
+        assert torch.allclose(scaled(codes, None, actions), plain(codes, None, divided), atol=1e-5)
+    with pytest.raises(ValueError, match="positive finite"):
+        preset("tiny-wm", action_scale=(1.0, 0.0) + (1.0,) * (d - 2))
+    with pytest.raises(ValueError, match="positive finite"):
+        preset("tiny-wm", action_scale=(1.0,))
 
 
 def test_actions_change_the_prediction_from_their_step_on():

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 
-from models.world_model import WorldModel, next_frame_loss, preset
+from models.world_model import WorldModel, next_frame_loss, post_trainable, preset
 from tasks.world import checkpoints
 from tasks.world.data import CodeSequence
 from tasks.world.train import WorldTrainConfig, posttrain, sample_windows, train_world_model, window_length
@@ -89,3 +89,47 @@ def test_posttraining_starts_from_the_pretrained_model_and_round_trips(tmp_path)
     assert batch.artifacts[0].attrs["config_uri"].endswith("config.json")
     assert [(e.parent_id, e.relation) for e in batch.edges] == [("ep", "trained_on"), ("pre", "posttrained_from")]
     assert sorted(m.name for m in batch.metrics) == ["train_accuracy", "train_loss"]
+
+
+def _pushed(n, frames, seed):
+    """Episodes whose every code moves by +1 or -1 each latent step as the action says, with
+    end-effector-sized actions (3 mm a step, as the push controller's), a noisy second value
+    and a gripper value held at 1."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for i in range(n):
+        codes, actions = [rng.integers(0, K, (4, 4))], []
+        for _ in range(frames - 1):
+            d = int(rng.choice([-1, 1]))
+            a = np.zeros((4, 8), np.float32)
+            a[:, 0], a[:, 1], a[:, 4] = 0.003 * d + rng.normal(0, 5e-4, 4), rng.normal(0, 2e-3, 4), 1.0
+            actions.append(a.reshape(-1))
+            codes.append((codes[-1] + d) % K)
+        out.append(CodeSequence(key=f"e{i}", codes=np.stack(codes).astype(np.int64), text="push", actions=np.stack(actions)))
+    return out
+
+
+def _accuracy(model, episodes, flip=False):
+    hits = []
+    with torch.no_grad():
+        for e in episodes:
+            codes, acts = torch.from_numpy(e.codes[:4])[None], torch.from_numpy(e.actions[:3])[None].clone()
+            if flip:
+                acts[..., 0::8] *= -1
+            hits.append((model(codes, [e.text], acts)[:, :-1].argmax(-1) == codes[:, 1:]).float().mean().item())
+    return float(np.mean(hits))
+
+
+def test_posttraining_learns_millimetre_actions():
+    """Post-training divides each action value by its RMS over the episodes; without that, the
+    3 mm steps vanish under the encoder's initial weights and the model stays at chance."""
+    config = WorldTrainConfig(steps=60, batch_size=8, lr=3e-3, warmup_steps=5, threads=1, log_every=30)
+    train, test = _pushed(8, 12, 0), _pushed(4, 4, 1)
+    pre = _model()
+    post, _ = posttrain(pre, train, config)
+    assert post.config.action_scale[0] == pytest.approx(0.003, rel=0.1) and post.config.action_scale[4] == 1.0
+    assert _accuracy(post, test) > 0.9 and _accuracy(post, test, flip=True) < 0.1
+    torch.manual_seed(config.seed)
+    unscaled = post_trainable(pre)
+    train_world_model(unscaled, train, config)
+    assert _accuracy(unscaled, test) < 0.7
