@@ -335,3 +335,22 @@ def test_predict_windows_line_up_with_the_episode(push, truths):
     assert np.array_equal(shuffled_rows[:, :context - 1], true_rows[:, :context - 1])  # the context's own actions
     assert not any(np.array_equal(a, b) for a, b in zip(shuffled_rows[:, context - 1:], true_rows[:, context - 1:]))
     assert any(w.moved for w in windows) and not all(w.moved for w in windows)
+
+
+def test_push_closeup_keeps_the_package_in_view_and_moving():
+    """The manifest the physics alignment is measured on: from the side opposite the arm the
+    package is never hidden (its mask keeps most of its area on every frame), and it crosses a
+    good part of the frame while pushed, a few pixels per frame (so copy-last-frame is a real
+    floor at 4 frames); on conveyor_push's overhead camera the arm covers it while it pushes."""
+    closeup = load(MANIFESTS / "push_closeup.yaml")
+    truth = render_truth(closeup, 10000, "side")
+    area = truth.masks.reshape(len(truth.masks), -1).sum(1)
+    assert area.min() >= 0.6 * area.max() > 0
+    x = physics.centroids(truth.masks)[:, 0]
+    steps = np.abs(np.diff(x))
+    assert x.max() - x.min() > 25  # px of 64
+    assert np.sort(steps)[-8:].min() > 1.5  # the push: at least 8 frames moving > 1.5 px each
+
+    overhead = render_truth(load(MANIFESTS / "conveyor_push.yaml"), 10000, "overhead")
+    covered = overhead.masks.reshape(len(overhead.masks), -1).sum(1)
+    assert covered.min() < 0.5 * covered[0]
