@@ -23,7 +23,9 @@ from scipy import ndimage
 
 from schemas.manifest import Camera, Evaluation
 
-DETECTOR_VERSION = 1  # part of every evaluation's key: a changed detector re-judges
+# Part of every evaluation's key: a changed detector re-judges. 2: sizes and heights from the
+# camera's pose (side views), not from an overhead camera's height.
+DETECTOR_VERSION = 2
 TABLE_TOP = 0.10  # tasks/sim/scene.py: the push table's top (m)
 PACKAGE_HALF = (0.04, 0.03, 0.03)  # tasks/sim/scene.py: the package's half sizes (m)
 
@@ -69,6 +71,35 @@ def on_plane(camera: Camera, pixel: np.ndarray, z: float) -> np.ndarray:
     return pos + ray * (z - pos[2]) / ray[2]
 
 
+def depth(camera: Camera, point: np.ndarray) -> float:
+    """Distance of a world point in front of the camera along its optical axis (m)."""
+    pos, rot = camera_axes(camera)
+    return float(-((np.asarray(point, float) - pos) @ rot)[2])
+
+
+def disc_area_px(camera: Camera, radius: float, samples: int = 64) -> float:
+    """Pixel area of a table disc of ``radius`` where the optical axis meets the table: its
+    projected outline (an ellipse for a camera looking at the table from the side)."""
+    w, h = camera.resolution
+    centre = on_plane(camera, np.array([w / 2, h / 2]), TABLE_TOP)
+    angle = np.linspace(0, 2 * math.pi, samples, endpoint=False)
+    rim = centre + radius * np.column_stack([np.cos(angle), np.sin(angle), np.zeros(samples)])
+    x, y = project(camera, rim).T
+    return float(0.5 * abs(np.dot(x, np.roll(y, 1)) - np.dot(y, np.roll(x, 1))))
+
+
+def seen_height(camera: Camera, point: np.ndarray) -> float:
+    """Height of the package's visible centroid: its top face from above, lower from the side
+    (top and front faces weighted by the areas the camera sees of them)."""
+    pos, _ = camera_axes(camera)
+    ray = np.asarray(point, float) - pos
+    sin = min(1.0, abs(ray[2]) / max(float(np.linalg.norm(ray)), 1e-9))
+    cos = math.sqrt(max(0.0, 1.0 - sin * sin))
+    top = 4 * PACKAGE_HALF[0] * PACKAGE_HALF[1] * sin
+    side = 4 * PACKAGE_HALF[1] * PACKAGE_HALF[2] * cos
+    return TABLE_TOP + PACKAGE_HALF[2] * (1 + top / max(top + side, 1e-9))
+
+
 def _goal_disc(frame: np.ndarray, camera: Camera, tolerance: float) -> np.ndarray | None:
     """Centre (column, row) of the goal disc: the saturated green blob closest in area to the
     disc's projected size. None when no blob fits (dark frames, occluded goal)."""
@@ -78,8 +109,7 @@ def _goal_disc(frame: np.ndarray, camera: Camera, tolerance: float) -> np.ndarra
     green = (g - np.maximum(r, b) > 0.25 * g + 4) & (g > 0.3 * np.percentile(rgb, 99))
     if not green.any():
         return None
-    pos, _ = camera_axes(camera)
-    expected = math.pi * (tolerance * focal_px(camera) / (pos[2] - TABLE_TOP)) ** 2
+    expected = disc_area_px(camera, tolerance)
     best, centre = math.log(2.5), None
     # A green table (appearance jitter) joins the disc into one big blob; the unlit disc is
     # the brightest green, so also try only the brightest green pixels.
@@ -158,10 +188,10 @@ def judge_push(frames: np.ndarray, camera: Camera, evaluation: Evaluation, packa
     if goal_px is None:
         return Verdict(None, "goal marker not found in the first frame")
     frames = _exposed(frames)
-    top = TABLE_TOP + 2 * PACKAGE_HALF[2]
-    start_px = project(camera, np.array([[package_start[0], package_start[1], top]]))[0]
-    pos, _ = camera_axes(camera)
-    half_px = min(PACKAGE_HALF[:2]) * focal_px(camera) / (pos[2] - top)
+    top = seen_height(camera, np.array([package_start[0], package_start[1], TABLE_TOP + PACKAGE_HALF[2]]))
+    start = np.array([package_start[0], package_start[1], top])
+    start_px = project(camera, start[None])[0]
+    half_px = min(PACKAGE_HALF[:2]) * focal_px(camera) / depth(camera, start)
     shift = image_shift(frames[0], frames[-1])
     end_px, seen = _track(frames, start_px, half_px, _palette(frames, start_px, half_px, shift))
     if seen < max(1, len(frames) // 4):
