@@ -25,8 +25,9 @@ def test_invalid_manifest_is_one_line_exit_2_and_nothing_written(tmp_path, data_
 
 
 def test_validate_hash_and_show():
-    result = runner.invoke(app, ["manifest", "validate", *map(str, sorted(MANIFESTS.glob("*.yaml")))])
-    assert result.exit_code == 0 and result.output.count("ok ") == 3
+    shipped = sorted(MANIFESTS.glob("*.yaml"))
+    result = runner.invoke(app, ["manifest", "validate", *map(str, shipped)])
+    assert len(shipped) >= 3 and result.exit_code == 0 and result.output.count("ok ") == len(shipped)
     result = runner.invoke(app, ["manifest", "hash", str(GOOD)])
     assert result.output.strip() == manifest_hash(load(GOOD))
     result = runner.invoke(app, ["manifest", "show", str(GOOD)])
