@@ -21,7 +21,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import tasks.sim  # noqa: F401,I001  (sets MUJOCO_GL before mujoco loads: keep it above `import mujoco`)
 import mujoco
 import numpy as np
 import torch
@@ -29,6 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from safetensors.torch import load_file
 from scipy import special
 
+import tasks.sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from models.bc_policy import BCConfig, BCPolicyNet, preset
 from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.panel import PanelContract, contract_hash, panel_contract

@@ -5,10 +5,6 @@ manifest and a seed), `stressors` (forklift, occluder, distractors, appearance),
 (differential IK), `control` (scripted controllers), `render` (multi-camera offscreen
 renderer), `episode` (rollout and judging), `files` (MP4 + Parquet + meta.json, lineage),
 `segments` (continuous footage for the raw corpus).
+
+MUJOCO_GL=egl is set by the `tasks` package itself, before any of these modules loads mujoco.
 """
-
-import os
-
-# MuJoCo picks its GL backend when first imported; on this CPU-only machine only EGL works
-# headless, so this must run before any `import mujoco` anywhere in the package.
-os.environ.setdefault("MUJOCO_GL", "egl")

@@ -1,5 +1,5 @@
-"""MuJoCo picks its GL backend when it is first imported: every module that imports it must
-have set MUJOCO_GL=egl before (through `tasks.sim`), or a fresh `worldline` process that
+"""MuJoCo picks its GL backend when it is first imported: the `tasks` package sets
+MUJOCO_GL=egl before any of its modules can import it, or a fresh `worldline` process that
 reaches it first renders through GLFW and dies on a machine without a display."""
 
 import os

@@ -337,7 +337,7 @@ def test_predict_windows_line_up_with_the_episode(push, truths):
     assert any(w.moved for w in windows) and not all(w.moved for w in windows)
 
 
-def test_push_closeup_keeps_the_package_in_view_and_moving():
+def test_push_closeup_keeps_the_package_in_view_and_moving(truths):
     """The manifest the physics alignment is measured on: from the side opposite the arm the
     package is never hidden (its mask keeps most of its area on every frame), and it crosses a
     good part of the frame while pushed, a few pixels per frame (so copy-last-frame is a real
@@ -351,6 +351,6 @@ def test_push_closeup_keeps_the_package_in_view_and_moving():
     assert x.max() - x.min() > 25  # px of 64
     assert np.sort(steps)[-8:].min() > 1.5  # the push: at least 8 frames moving > 1.5 px each
 
-    overhead = render_truth(load(MANIFESTS / "conveyor_push.yaml"), 10000, "overhead")
+    overhead = truths[10000]  # conveyor_push's overhead camera, the same held-out seed
     covered = overhead.masks.reshape(len(overhead.masks), -1).sum(1)
     assert covered.min() < 0.5 * covered[0]
