@@ -24,8 +24,9 @@ from scipy import ndimage
 from schemas.manifest import Camera, Evaluation
 
 # Part of every evaluation's key: a changed detector re-judges. 2: sizes and heights from the
-# camera's pose (side views), not from an overhead camera's height.
-DETECTOR_VERSION = 2
+# camera's pose (side views), not from an overhead camera's height. 3: a lost package is
+# searched for in a widening window (decoded frames), the largest blob of its colours.
+DETECTOR_VERSION = 3
 TABLE_TOP = 0.10  # tasks/sim/scene.py: the push table's top (m)
 PACKAGE_HALF = (0.04, 0.03, 0.03)  # tasks/sim/scene.py: the package's half sizes (m)
 
@@ -160,21 +161,34 @@ def _palette(frames: np.ndarray, start: np.ndarray, half_px: float, shift: np.nd
 
 def _track(frames: np.ndarray, start: np.ndarray, half_px: float, palette: np.ndarray) -> tuple[np.ndarray, int]:
     """Follow the package from ``start`` by its colours; returns its last seen centre and in
-    how many frames it was seen."""
+    how many frames it was seen.
+
+    Each frame is searched near the last sighting; the package is the largest blob of palette
+    colours there, big enough for a part of it. A frame without it widens the next search by
+    half, so a package lost for a while (an arm over it, or a decoder's colours drifting for a
+    few frames) is found again where it went rather than left where it was last seen."""
     h, w = frames.shape[1:3]
     rows, cols = np.mgrid[0:h, 0:w]
     if not len(palette):
         return start, 0
-    window = 1.6 * half_px + 3
+    base = 1.6 * half_px + 3
+    window, widest = base, float(np.hypot(h, w))
     need = max(2, int(0.15 * math.pi * half_px ** 2))
     at, seen = start.astype(float), 0
     for frame in frames:
         near = np.hypot(cols - at[0], rows - at[1]) <= window
         pix = frame[near].astype(np.float32)
-        hit = np.min(np.linalg.norm(pix[:, None, :] - palette[None], axis=2), axis=1) < 28
-        if hit.sum() >= need:
-            at = np.array([cols[near][hit].mean(), rows[near][hit].mean()])
+        hit = np.zeros((h, w), bool)
+        hit[near] = np.min(np.linalg.norm(pix[:, None, :] - palette[None], axis=2), axis=1) < 28
+        labels, n = ndimage.label(hit)
+        sizes = ndimage.sum_labels(hit, labels, range(1, n + 1)) if n else np.zeros(0)
+        if n and sizes.max() >= need:
+            blob = labels == int(np.argmax(sizes)) + 1
+            at = np.array([cols[blob].mean(), rows[blob].mean()])
             seen += 1
+            window = base
+        else:
+            window = min(widest, 1.5 * window)
     return at, seen
 
 

@@ -71,3 +71,20 @@ def test_push_verdict_from_a_side_camera(seed):
     if ep.success:
         truth = float(np.linalg.norm(ep.object_pose[-1, 0, :2] - build_scene(noisy, seed).goal[:2]))
         assert abs(verdict.distance_m - truth) < 0.015
+
+
+def test_a_package_lost_for_a_while_is_found_again():
+    """A decoder's colours can drift for several frames (a world model's rollout, a tokenizer's
+    reconstruction): the package is then invisible while it moves. Frames 10 to the last 8 of
+    a successful push are blanked here; the track must pick the package up again at the goal
+    rather than report it where it was last seen."""
+    closeup = load(MANIFESTS / "push_closeup.yaml")
+    noisy = closeup.model_copy(update={"task": closeup.task.model_copy(update={"controller_noise": 0.8})})
+    ep = rollout(noisy, 23)
+    assert ep.success
+    frames = ep.frames["side"].copy()
+    frames[10:-8] = np.median(frames[0].reshape(-1, 3), axis=0).astype(np.uint8)
+    verdict = judge_frames(frames, noisy.cameras[0], noisy.evaluation, ep.object_pose[0, 0, :3])
+    truth = float(np.linalg.norm(ep.object_pose[-1, 0, :2] - build_scene(noisy, 23).goal[:2]))
+    assert verdict.success, verdict.reason
+    assert abs(verdict.distance_m - truth) < 0.015
