@@ -331,6 +331,8 @@ def train(
     batch: int = typer.Option(8, min=1, max=256, help="windows per training step"),
     change_weight: float = typer.Option(0.0, min=0.0, max=100.0, help="extra loss weight on codes that change "
                                                                       "from one latent frame to the next"),
+    self_condition: float = typer.Option(0.0, min=0.0, max=1.0, help="share of post-training windows whose input "
+                                         "frames after the first are the model's own rollout (open-loop robustness)"),
 ) -> None:
     """Pre-train a world model on token shards, post-train it with actions on episodes (Prefect flow `train`)."""
     from models.world_model import PRESETS
@@ -345,7 +347,8 @@ def train(
     try:
         episode_folders(manifest, Settings().data_root.resolve())
         result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, batch_size=batch, window=window,
-                            camera=camera, patch=patch, change_weight=change_weight)
+                            camera=camera, patch=patch, change_weight=change_weight,
+                            self_condition=self_condition)
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
     done = {True: "trained", False: "already trained"}

@@ -195,7 +195,9 @@ def posttrain(pretrained: Path, episodes: list[data.CodeSequence], config: World
 
 def _meaning(config: WorldTrainConfig) -> str:
     # Threads change float summation order, not what is trained: the same run elsewhere is skipped.
-    return content_hash(config.model_dump(mode="json", exclude={"threads"}))
+    # A field added later is left out at its default, so checkpoints trained before it keep their ids.
+    unset = {"self_condition"} if not config.self_condition else set()
+    return content_hash(config.model_dump(mode="json", exclude={"threads", *unset}))
 
 
 def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: float, mh: str | None, **attrs):
@@ -223,12 +225,15 @@ def token_patch(grid_h: int, grid_w: int, max_tokens: int = 64) -> int:
 @flow(name="train", log_prints=True)
 def train(manifest: str, tokenizer: str | None = None, token_shards: str | None = None, preset_name: str = "tiny-wm",
           pretrain_steps: int = 200, posttrain_steps: int = 100, batch_size: int = 8, window: int | None = None,
-          camera: str | None = None, seed: int = 0, patch: int | None = None, change_weight: float = 0.0) -> dict:
+          camera: str | None = None, seed: int = 0, patch: int | None = None, change_weight: float = 0.0,
+          self_condition: float = 0.0) -> dict:
     """Pre-train world model ``preset_name`` on ``tokenizer``'s token shards (or ``token_shards``),
     then post-train it with actions on the simulated episodes of ``manifest`` (a YAML, an
     episode folder or a manifest hash), every camera or only ``camera``. ``patch``: codes per
     token side (default `token_patch`: at most 64 tokens per latent frame). ``change_weight``:
-    extra loss weight on codes that change from one latent frame to the next."""
+    extra loss weight on codes that change from one latent frame to the next. ``self_condition``:
+    share of post-training windows that read the model's own rollout instead of the true frames
+    (``tasks.world.train.own_inputs``)."""
     settings = Settings()
     root = settings.data_root.resolve()
     folders, scenario = episode_folders(manifest, root)
@@ -238,7 +243,7 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                               "preset": preset_name, "pretrain_steps": pretrain_steps,
                               "posttrain_steps": posttrain_steps, "batch_size": batch_size, "window": window,
                               "camera": camera, "seed": seed, "patch": patch,
-                              "change_weight": change_weight}) as run:
+                              "change_weight": change_weight, "self_condition": self_condition}) as run:
         tok_folder, tok_id, tok_config = tokenizer_checkpoint(run, tokenizer)
         shards, sequences, (grid_h, grid_w), size = token_inputs(run, tok_id, token_shards)
         hashes = {mh for *_, mh in shards if mh}
@@ -251,7 +256,7 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                                       threads=threads, change_weight=change_weight)
         post_config = WorldTrainConfig(preset=preset_name, steps=posttrain_steps, batch_size=batch_size, seed=seed,
                                        threads=threads, lr=pre_config.lr / 2, warmup_steps=10,
-                                       change_weight=change_weight)
+                                       change_weight=change_weight, self_condition=self_condition)
 
         # -- pre-training: token sequences with their captions
         t0 = time.perf_counter()

@@ -33,6 +33,8 @@ class WorldTrainConfig(BaseModel):
     weight_decay: float = Field(0.01, ge=0)
     text_dropout: float = Field(0.1, ge=0, le=1, description="share of windows trained without their text")
     change_weight: float = Field(0.0, ge=0, description="extra loss weight on codes that change from the frame before")
+    self_condition: float = Field(0.0, ge=0, le=1, description="share of windows whose input frames after the first "
+                                  "are the model's own predictions (see ``own_inputs``)")
     seed: int = 0
     threads: int = Field(2, ge=1)
     log_every: int = Field(10, ge=1)
@@ -71,6 +73,35 @@ def sample_windows(sequences: Sequence[CodeSequence], frames: int, batch: int, g
             actions.append(seq.actions[t0:t0 + frames - 1])
     acts = torch.from_numpy(np.stack(actions)) if with_actions else None
     return torch.from_numpy(np.stack(codes)).long(), texts, acts
+
+
+def own_inputs(model: WorldModel, codes: torch.Tensor, texts: list[str], actions: torch.Tensor | None,
+               share: float, gen: torch.Generator) -> torch.Tensor:
+    """Inputs for windows that read the model's own frames instead of the true ones.
+
+    Open-loop rollouts feed a model its own predictions, which drift from anything it saw in
+    training; trained only on true frames it never learns to recover from them. For a share
+    of the windows (drawn with ``gen``), the input frames after the first are replaced by what
+    the model itself predicts, unrolled (without gradients) as a rollout would: frame j + 1
+    is predicted from frames 0..j of the previous pass, T' - 1 passes in all. Targets stay
+    the true frames, so the model learns to pull a drifted frame back to the truth
+    (scheduled sampling, Bengio et al. 2015, unrolled over the window)."""
+    picked = torch.rand(codes.shape[0], generator=gen) < share
+    if not picked.any():
+        return codes
+    sub, acts = codes[picked], None if actions is None else actions[picked]
+    kept = [t for t, p in zip(texts, picked.tolist(), strict=True) if p]
+    was_training = model.training
+    model.eval()
+    with torch.no_grad():
+        inputs = sub
+        for _ in range(sub.shape[1] - 1):
+            predicted = model(inputs, kept, acts).argmax(-1)
+            inputs = torch.cat([sub[:, :1], predicted[:, :-1]], dim=1)
+    model.train(was_training)
+    out = codes.clone()
+    out[picked] = inputs
+    return out
 
 
 def lr_at(config: WorldTrainConfig, step: int, progress: float) -> float:
@@ -112,7 +143,8 @@ def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], conf
             group["lr"] = lr_at(config, step, progress)
         codes, texts, actions = sample_windows(sequences, frames, config.batch_size, gen, with_actions,
                                                config.text_dropout)
-        logits = model(codes, texts, actions)
+        inputs = own_inputs(model, codes, texts, actions, config.self_condition, gen) if config.self_condition else codes
+        logits = model(inputs, texts, actions)
         loss = next_frame_loss(logits, codes, config.change_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()

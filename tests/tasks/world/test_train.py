@@ -7,7 +7,8 @@ import torch
 from models.world_model import WorldModel, next_frame_loss, post_trainable, preset
 from tasks.world import checkpoints
 from tasks.world.data import CodeSequence
-from tasks.world.train import WorldTrainConfig, posttrain, sample_windows, train_world_model, window_length
+from tasks.world.train import (WorldTrainConfig, own_inputs, posttrain, sample_windows, train_world_model,
+                               window_length)
 
 K = 32
 
@@ -57,6 +58,34 @@ def test_training_is_seeded_and_learns():
     assert history[-1]["copy_accuracy"] == 0.0  # every frame differs from the last: copying never works
     budget = train_world_model(_model(), _sequences(), config.model_copy(update={"seconds": 1e-6}))
     assert [h["step"] for h in budget] == [1]  # a budget ends training (and is logged)
+
+
+def test_own_inputs_are_the_models_rollout_from_the_first_frame():
+    model = post_trainable(_model(), None)
+    torch.nn.init.normal_(model.action_encoder.net[-1].weight, std=0.5)  # actions must matter
+    codes, texts, actions = sample_windows(_sequences(4, 6, with_actions=True), 4, 6,
+                                           torch.Generator().manual_seed(0), True)
+    everything = own_inputs(model, codes, texts, actions, 1.0, torch.Generator().manual_seed(1))
+    rolled = model.rollout(codes[:, :1], 3, texts, actions)
+    assert torch.equal(everything[:, 0], codes[:, 0]) and torch.equal(everything[:, 1:], rolled)
+    assert not torch.equal(everything, codes)  # an untrained model's frames are not the truth
+    assert own_inputs(model, codes, texts, actions, 0.0, torch.Generator()) is codes
+    some = own_inputs(model, codes, texts, actions, 0.5, torch.Generator().manual_seed(1))
+    picked = (torch.rand(6, generator=torch.Generator().manual_seed(1)) < 0.5).tolist()
+    assert any(picked) and not all(picked)  # the draw the trainer makes: a mixed batch
+    for b in range(6):
+        assert torch.equal(some[b], everything[b] if picked[b] else codes[b])
+    assert model.training  # left as it was found
+    model.eval()
+    own_inputs(model, codes, texts, actions, 1.0, torch.Generator())
+    assert not model.training
+
+
+def test_self_conditioned_training_learns():
+    config = WorldTrainConfig(steps=40, batch_size=4, lr=3e-3, warmup_steps=5, threads=1, log_every=10,
+                              self_condition=0.5)
+    history = train_world_model(_model(), _sequences(), config)
+    assert history[-1]["loss"] < 0.5 * np.log(K) and history[-1]["accuracy"] > history[0]["accuracy"]
 
 
 def test_posttraining_starts_from_the_pretrained_model_and_round_trips(tmp_path):
