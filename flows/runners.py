@@ -1,4 +1,8 @@
-"""The task runner a flow fans out on: threads in the flow process (default) or a Ray cluster.
+"""The task runner a flow fans out on: threads in the flow process (default), processes, or a Ray cluster.
+
+`WORLDLINE_TASK_RUNNER=process` runs tasks in a pool of `WORLDLINE_WORKERS` spawned processes
+(Prefect's ProcessPoolTaskRunner): no GIL shared between the workers, at the price of a few
+seconds to start each one.
 
 `WORLDLINE_TASK_RUNNER=ray` runs tasks through prefect-ray (the `ray` extra) on the cluster at
 `WORLDLINE_RAY_ADDRESS`, or on a local cluster started for the flow run when none is given.
@@ -9,7 +13,7 @@ from __future__ import annotations
 
 import os
 
-from prefect.task_runners import TaskRunner, ThreadPoolTaskRunner
+from prefect.task_runners import ProcessPoolTaskRunner, TaskRunner, ThreadPoolTaskRunner
 
 from schemas.settings import Settings
 
@@ -22,6 +26,8 @@ def task_runner(settings: Settings | None = None) -> TaskRunner:
     settings = settings or Settings()
     if settings.task_runner == "local":
         return ThreadPoolTaskRunner(max_workers=settings.workers)
+    if settings.task_runner == "process":
+        return ProcessPoolTaskRunner(max_workers=settings.workers)
     try:
         from prefect_ray import RayTaskRunner
     except ImportError as exc:

@@ -18,7 +18,7 @@ class Settings(BaseSettings):
     warehouse: Path | None = Field(None, description="DuckDB lineage file; default <data_root>/lineage.duckdb")
     prefect_home: Path | None = Field(None, description="PREFECT_HOME; default <data_root>/prefect")
     robots_root: Path = Field(Path("../shared/data/robots"), description="where MJCF paths in manifests resolve")
-    task_runner: Literal["local", "ray"] = "local"
+    task_runner: Literal["local", "process", "ray"] = "local"
     ray_address: str | None = None
     workers: int = Field(2, ge=1, le=256)
 
