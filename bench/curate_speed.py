@@ -9,7 +9,8 @@ bench/out/speed_corpus/), in one run, back to back:
     only, then `shards.write_shards`. Prefect and the lineage writes are left out (they are
     the same whatever the footage; the curate flow test covers them).
 (b) codec: one full decode of each source plus one encode of (a)'s kept clips with the same
-    encoder (`encode.EncodeConfig`, `encode.x264_options`): the work no curator can avoid.
+    encoder (`encode.EncodeConfig`, `encode.x264_options`) and the same decoder threading as
+    (a)'s encode pass (`CurateConfig.for_batch`): the work no curator can avoid.
 (c) scenedetect: `scenedetect -i FILE -o DIR detect-content split-video -p PRESET -crf CRF`
     per source, with Debian's ffmpeg (`make bench-deps`): it decodes twice, filters nothing
     and encodes every scene.
@@ -165,7 +166,7 @@ def _decode_encode(source: Path, spans: list[tuple[int, int]], root: Path, confi
     container = open_video(source)
     try:
         stream = container.streams.video[0]
-        stream.thread_type = "AUTO"
+        stream.thread_type = config.decode_thread_type  # the same decoder as (a)'s encode pass
         stream.thread_count = config.decode_threads
         writers: dict[int, _Writer] = {}
         starts = {s: j for j, (s, _) in enumerate(spans)}
@@ -240,13 +241,14 @@ def main() -> None:
         videos = corpus(args.minutes, args.seed, width, height)
     if not args.no_scenedetect and (shutil.which("ffmpeg") is None or not SCENEDETECT.exists()):
         sys.exit("scenedetect needs ffmpeg on PATH and .venv/bin/scenedetect: run `make bench-deps`")
-    config = CurateConfig()
+    # As the curate flow does: one decoder thread per video when every worker has a video.
+    config = CurateConfig().for_batch(len(videos), args.workers)
     import scipy.fftpack  # noqa: F401  imagehash's phash imports it on first use: a one-off second, not per frame
     frames = sum(frame_count(v) for v in videos)
     fps = probe(videos[0]).fps
     print(f"corpus: {len(videos)} videos, {frames} frames ({frames / fps / 60:.1f} min) of {args.size} at "
           f"{fps:g} fps; x264 {config.encode.preset} crf {config.encode.crf}, {config.encode.threads} x264 thread "
-          f"per clip; (a) and (b): {args.workers} worker {args.pool}s; (c): one source at a time, ffmpeg threads auto; "
+          f"per clip; decoders {config.analysis.thread_type}/{config.encode.decode_thread_type}; (a) and (b): {args.workers} worker {args.pool}s; (c): one source at a time, ffmpeg threads auto; "
           f"{os.cpu_count()} cores, load {os.getloadavg()[0]:.1f}", flush=True)
     run = args.work
     children = args.pool == "process"

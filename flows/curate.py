@@ -56,6 +56,7 @@ def analyse_all(run: RunContext, inputs: list[Input], config: CurateConfig,
     config_hash = config.analysis_hash()
     keys = {stable_id(item.sha256, config_hash, run.manifest_hash or ""): item for item in inputs}
     done = set(keys) - set(run.pending("analyse", list(keys)))
+    config = config.for_batch(len(keys) - len(done), run.settings.workers)
     results, futures = [], {}
     for key, item in keys.items():
         cache = paths.resolve(root, paths.ANALYSIS_FILE, sha256=item.sha256, config_hash=config_hash)
@@ -119,6 +120,7 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
     by_source: dict[str, list[ClipRecord]] = defaultdict(list)
     for clip in clips:
         by_source[clip.source_uri].append(clip)
+    config = config.for_batch(len(by_source), run.settings.workers)
     futures, out = [], []
     for source, group in sorted(by_source.items()):
         group.sort(key=lambda c: c.start_frame)

@@ -44,13 +44,33 @@ class CurateConfig(BaseModel):
         return self.motion, self.quality, self.overlay_text, self.video_type
 
     def analysis_hash(self) -> str:
-        """What decides a video's analysis result (not encoding or sharding)."""
-        return content_hash(self.model_dump(mode="json", include={
+        """What decides a video's analysis result (not encoding, sharding or decoder threads)."""
+        return content_hash(self.model_dump(mode="json", exclude=DECODER_THREADS, include={
             "analysis", "scenes", "motion", "quality", "overlay_text", "video_type", "captions", "dedup", "guard"}))
 
     def encode_hash(self) -> str:
-        """What decides a kept clip's bytes: the encoder and the face guard."""
-        return content_hash(self.model_dump(mode="json", include={"encode", "guard"}))
+        """What decides a kept clip's bytes: the encoder and the face guard (not decoder threads)."""
+        return content_hash(self.model_dump(mode="json", exclude=DECODER_THREADS, include={"encode", "guard"}))
+
+    def for_batch(self, videos: int, workers: int) -> CurateConfig:
+        """This config for ``videos`` sources on a pool of ``workers``: when every worker has a
+        video of its own, each video is decoded on one thread, since FFmpeg's frame threads
+        then add only their own overhead (bench/curate_speed.py: about 15% of the CPU of both
+        the curation and the codec work alone). Fewer videos than workers keep frame threads,
+        so one video still uses every core. Threading set in the config is left alone; it
+        never changes a result, so it is not part of any key."""
+        if workers < 2 or videos < workers:
+            return self
+        update = {}
+        if not DECODER_THREADS["analysis"] & self.analysis.model_fields_set:
+            update["analysis"] = self.analysis.model_copy(update={"thread_type": "NONE"})
+        if not DECODER_THREADS["encode"] & self.encode.model_fields_set:
+            update["encode"] = self.encode.model_copy(update={"decode_thread_type": "NONE"})
+        return self.model_copy(update=update)
+
+
+# Decoder threading: how fast frames come, never which frames.
+DECODER_THREADS = {"analysis": {"thread_type", "threads"}, "encode": {"decode_threads", "decode_thread_type"}}
 
 
 def load_config(path: Path | None) -> CurateConfig:

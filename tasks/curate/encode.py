@@ -36,6 +36,7 @@ class EncodeConfig(BaseModel):
     threads: int = Field(1, ge=1, le=16, description="x264 threads; fixed, since the bytes depend on it")
     x264_params: str = Field("", description="extra x264 options, e.g. 'keyint=60'")
     decode_threads: int = Field(0, ge=0, le=64, description="decoder threads (0: FFmpeg chooses)")
+    decode_thread_type: Literal["AUTO", "NONE"] = Field("AUTO", description="NONE: decode on one thread")
     # x264's AVX-512 functions read memory they never wrote: on an AVX-512 CPU the same
     # frames gave 8 different clips in 8 runs (64x48) while x264 limited to AVX2 gave one.
     # The limit costs about a quarter of x264's speed on such CPUs (49 vs 67 fps at 720p).
@@ -195,7 +196,7 @@ def encode_clips(source: Path | str, spans: Sequence[tuple[int, int]], out_paths
     frames = None
     try:
         stream = container.streams.video[0]
-        stream.thread_type = "AUTO"
+        stream.thread_type = config.decode_thread_type
         stream.thread_count = config.decode_threads
         waiting = list(order)  # spans not yet started, by start frame
         position = -1  # index of the last frame decoded
