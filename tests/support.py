@@ -278,3 +278,36 @@ def sha256_of(path: Path) -> str:
 
 def shard_digests(root: Path) -> dict[str, str]:
     return {p.relative_to(root).as_posix(): sha256_of(p) for p in sorted((Path(root) / "shards").rglob("*.parquet"))}
+
+
+RUNNER_LINEAGE = """SELECT kind, count(*) FROM artifacts GROUP BY kind
+             UNION ALL SELECT 'edges', count(*) FROM edges
+             UNION ALL SELECT 'rejections', count(*) FROM rejections ORDER BY 1"""
+
+
+def runner_inbox(folder: Path) -> Path:
+    """Two 3-second conveyor_push episodes and one unreadable file: what the task-runner tests
+    curate on each runner."""
+    from tasks.manifests import load
+    from tasks.mp4 import write_mp4
+    from tasks.sim.episode import rollout
+
+    folder.mkdir(parents=True, exist_ok=True)
+    scenario = load(MANIFESTS / "conveyor_push.yaml").model_copy(update={"horizon_s": 3.0})
+    for seed in (1, 2):
+        write_mp4(folder / f"episode_{seed}.mp4", rollout(scenario, seed).frames["overhead"], 30)
+    (folder / "broken.mp4").write_bytes(b"not a video" * 50)
+    return folder
+
+
+def curate_on(flow, root: Path, monkeypatch, inbox: Path) -> tuple[dict, dict[str, str], list]:
+    """(summary, shard digests, lineage row counts) of ``flow`` (curate with some task runner)
+    over ``inbox`` into data root ``root``."""
+    from schemas.settings import Settings
+    from warehouse.store import Warehouse
+
+    monkeypatch.setenv("WORLDLINE_DATA_ROOT", str(root))
+    summary = flow([str(inbox)], str(MANIFESTS / "conveyor_push.yaml"))
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, rows = wh.query(RUNNER_LINEAGE)
+    return summary, shard_digests(root), rows
