@@ -4,7 +4,8 @@ held-out seeds -> rollout + segmentation replay -> the tokenizer's codes and rec
 -> world-model rollouts from every window with the true and with shuffled actions -> per
 horizon: PSNR and SSIM against the floor (last reconstructed context frame held) and the
 ceiling (the reconstruction), the package's position error (px, cm) and mask IoU where it
-moves [-> Sampson error between cameras] -> table, plots, quality checks, lineage.
+moves [-> Sampson error between cameras]; next-frame scores from the true frames on the
+held-out and on trained-on episodes (memorising) -> table, plots, quality checks, lineage.
 """
 
 from __future__ import annotations
@@ -27,7 +28,9 @@ from schemas.settings import Settings
 from tasks import manifests
 from tasks.tokenize import tokens
 from tasks.world import checkpoints, heldout, physics, plots
-from tasks.world.data import episode_text, read_meta
+from tasks.world import data
+from tasks.world.data import CodeSequence, episode_text, read_meta
+from tasks.world.train import teacher_forced
 from tasks.world.geometry import PinholeCamera, sampson_table
 
 STAGE = "evaluate_physics"
@@ -81,14 +84,15 @@ def world_model_folder(run: RunContext, world_model: str | None) -> Path:
     return (root / rows[0][0]).parent
 
 
+def trained_folders(config: dict, root: Path) -> list[Path]:
+    """The episode folders a post-trained checkpoint saw (its config lists them) that are still here."""
+    folders = [Path(uri) if Path(uri).is_absolute() else root / uri for uri in config.get("episodes", [])]
+    return [folder for folder in folders if (folder / "meta.json").is_file()]
+
+
 def trained_seeds(config: dict, root: Path) -> set[int]:
-    """Seeds of the episodes a post-trained checkpoint saw (its config lists their folders)."""
-    seeds = set()
-    for uri in config.get("episodes", []):
-        folder = Path(uri) if Path(uri).is_absolute() else root / uri
-        if (folder / "meta.json").is_file():
-            seeds.add(int(read_meta(folder)["seed"]))
-    return seeds
+    """Seeds of the episodes a post-trained checkpoint saw."""
+    return {int(read_meta(folder)["seed"]) for folder in trained_folders(config, root)}
 
 
 @task(name="render-heldout", retries=1, cache_policy=NO_CACHE)
@@ -107,20 +111,31 @@ def render_heldout(scenario, seed: int, camera: str, others: list[str]) -> dict[
 @task(name="predict-heldout", cache_policy=NO_CACHE)
 def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, list[tuple[int, heldout.Truth]]],
                     cameras: dict[str, PinholeCamera], size: int, text: str, context: int, horizon: int, stride: int,
-                    move_m: float, shuffle_seed: int) -> dict[str, list[physics.Window]]:
-    """Windows per camera: encode, fit colours (primary camera), roll out with true and shuffled actions."""
+                    move_m: float, shuffle_seed: int, trained: list[Path], tokenizer_id: str, root: Path
+                    ) -> tuple[dict[str, list[physics.Window]], dict]:
+    """Windows per camera: encode, fit colours (primary camera), roll out with true and shuffled
+    actions. And teacher-forced next-frame scores on the primary camera's held-out episodes
+    beside as many of the episodes the model trained on (``trained``, that camera)."""
     import torch
 
     torch.set_num_threads(min(2, torch.get_num_threads()))
     model, tokenizer = checkpoints.load_checkpoint(wm_folder), tokens.load_checkpoint(tok_folder)
     if not model.config.action_conditioned:
         raise ValueError(f"{wm_folder}: not post-trained with actions; give a post-trained world model")
-    out = {}
+    out, fitted = {}, {}
     for name, truths in per_camera.items():
         prepared = [heldout.prepare(f"seed{seed}", t, cameras[name], tokenizer, size, model.config.action_dim, text)
                     for seed, t in truths]
         out[name] = heldout.predict(model, tokenizer, prepared, context, horizon, stride, move_m, shuffle_seed)
-    return out
+        if not fitted:  # the primary camera comes first
+            window = model.config.max_frames
+            fitted["held_out"] = teacher_forced(model, [CodeSequence(p.key, p.codes, p.text, p.actions)
+                                                        for p in prepared], window, stride)
+            seen = data.load_episodes(trained[:len(prepared)], tokenizer, size, [name], model.config.action_dim,
+                                      text, tokenizer_id, root)
+            if seen:
+                fitted["trained"] = teacher_forced(model, seen, window, stride)
+    return out, fitted
 
 
 def _fmt(v, digits=2) -> str:
@@ -133,7 +148,8 @@ def _detail(check: dict) -> str:
     return json.dumps({k: rounded(v) for k, v in check.items() if k != "passed"})
 
 
-def report_body(rows: list[dict], every: int, checks: dict, counts: dict, sampson: list[dict]) -> str:
+def report_body(rows: list[dict], every: int, checks: dict, counts: dict, sampson: list[dict],
+                fitted: dict | None = None) -> str:
     by = {(r["horizon"], r["method"]): r for r in rows}
     hs = sorted({h for h, _ in by if h % every == 0})
     ms = physics.METHODS
@@ -152,6 +168,12 @@ def report_body(rows: list[dict], every: int, checks: dict, counts: dict, sampso
             f"### package position (windows where it moves)\n\n{where}\n\n### checks\n\n"
             + markdown_table(("check", "passed", "detail"),
                              [(k, "yes" if v["passed"] else "no", _detail(v)) for k, v in checks.items()]))
+    if fitted:
+        text += ("\n\n### next frame from the true frames: held-out against trained-on episodes\n\n"
+                 "A model that has memorised its episodes scores far better on them than on new ones.\n\n"
+                 + markdown_table(("episodes", "windows", "loss (nats)", "accuracy", "changed codes right"),
+                                  [(name.replace("_", " "), f["windows"], _fmt(f["loss"], 3), _fmt(f["accuracy"], 3),
+                                    _fmt(f["changed_accuracy"], 3)) for name, f in fitted.items()]))
     if sampson:
         text += "\n\n### Sampson error between cameras (px, ORB matches)\n\n" + markdown_table(
             ("pair", "h", "source", "matches", "mean", "median"),
@@ -160,7 +182,8 @@ def report_body(rows: list[dict], every: int, checks: dict, counts: dict, sampso
     return text
 
 
-def _metrics(rows: list[dict], sampson: list[dict], checks: dict, every: int) -> list[tuple[str, float]]:
+def _metrics(rows: list[dict], sampson: list[dict], checks: dict, every: int,
+             fitted: dict | None = None) -> list[tuple[str, float]]:
     out = []
     for r in rows:
         if r["horizon"] % every:
@@ -175,6 +198,8 @@ def _metrics(rows: list[dict], sampson: list[dict], checks: dict, every: int) ->
             out.append((f"{prefix}/sampson_median_px/{r['pair']}/h{r['horizon']}", r["median_px"]))
             out.append((f"{prefix}/sampson_mean_px/{r['pair']}/h{r['horizon']}", r["mean_px"]))
     out += [(f"physics/check/{k}", float(v["passed"])) for k, v in checks.items()]
+    out += [(f"physics/teacher_forced/{name}/{key}", f[key]) for name, f in (fitted or {}).items()
+            for key in ("loss", "accuracy", "changed_accuracy") if np.isfinite(f[key])]
     return out
 
 
@@ -292,8 +317,9 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
                       for name in [primary.name, *others]}
         cameras = {c.name: PinholeCamera.from_manifest(c) for c in world}
         text = episode_text(scenario.task.instruction, [s.kind for s in scenario.stressors])
-        windows = predict_heldout(wm_folder, tok_folder, per_camera, cameras, size, text, context, horizon, stride,
-                                  move_threshold_cm / 100, shuffle_seed)
+        windows, fitted = predict_heldout(wm_folder, tok_folder, per_camera, cameras, size, text, context, horizon,
+                                          stride, move_threshold_cm / 100, shuffle_seed, trained_folders(config, root),
+                                          tok_id, root)
         main = windows[primary.name]
         if not main:
             raise ValueError(f"episodes of {scenario.horizon_s} s are too short for {context} + {horizon} "
@@ -305,7 +331,7 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
         reported = sorted({r["horizon"] for r in rows if r["horizon"] % every == 0})
         sampson = two_view_rows(windows, primary.name, cameras, reported)
         counts = window_counts(main, seeds)
-        body = report_body(rows, every, checks, counts, sampson)
+        body = report_body(rows, every, checks, counts, sampson, fitted)
         files = write_outputs(root, evaluation_id, rows, main, every, body)
         summary = {"run_id": run.run_id, "evaluation_id": evaluation_id, "world_model_id": wm_id,
                    "tokenizer_id": tok_id, "folder": str(files["result"].parent),
@@ -314,13 +340,14 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
         files["result"].write_text(json.dumps({"summary": summary, "params": params, "rows": rows, "sampson": sampson,
                                                "checks": checks, "counts": counts,
                                                "windows": [{"key": w.key, "moved": w.moved, "tracked": w.tracked,
-                                                            **w.info} for w in main]}, indent=1, default=float))
+                                                            **w.info} for w in main],
+                                               "teacher_forced": fitted}, indent=1, default=float))
         stage = StageRunRecord(stage_run_id=run.stage_run_id(STAGE, key), run_id=run.run_id, stage=STAGE,
                                input_key=key, manifest_hash=run.manifest_hash, n_in=len(seeds), n_out=1,
                                seconds=round(time.perf_counter() - t0, 3), attrs={"evaluation_id": evaluation_id})
         run.write(evaluation_lineage(root, evaluation_id, files, stage, wm_id, tok_id, run.manifest_hash,
                                      {"evaluation": "physics", "seeds": seeds, "camera": primary.name,
-                                      **summary["checks"]}, _metrics(rows, sampson, checks, every)))
+                                      **summary["checks"]}, _metrics(rows, sampson, checks, every, fitted)))
         publish("physics", f"{scenario.name}: world model {wm_id[:12]} on {len(seeds)} held-out episodes",
                 body, "world model against the simulator: per-horizon image, position and IoU errors")
         print(f"evaluation {evaluation_id}: " + ", ".join(f"{k} {'passed' if v else 'failed'}"

@@ -75,6 +75,39 @@ def sample_windows(sequences: Sequence[CodeSequence], frames: int, batch: int, g
     return torch.from_numpy(np.stack(codes)).long(), texts, acts
 
 
+@torch.no_grad()
+def teacher_forced(model: WorldModel, sequences: Sequence[CodeSequence], frames: int, stride: int = 2) -> dict:
+    """Next-frame scores on every window of ``frames`` latent frames (``stride`` apart) of
+    ``sequences``, fed the true frames and, to an action-conditioned model, their actions:
+    windows, loss (mean nats per code), accuracy, and changed_accuracy, the share right of the
+    codes that differ from the frame before (what copying the last frame never gets).
+
+    On held-out episodes beside training ones it shows memorising: a model that has learnt
+    its episodes by heart scores far better on them than on new ones."""
+    was_training = model.training
+    model.eval()
+    losses, right, moved, moved_right, total = [], 0, 0, 0, 0
+    for seq in sequences:
+        for t0 in range(0, seq.frames - frames + 1, stride):
+            codes = torch.from_numpy(seq.codes[t0:t0 + frames]).long()[None]
+            actions = None
+            if model.config.action_conditioned:
+                if seq.actions is None:
+                    raise ValueError(f"{seq.key}: no actions for an action-conditioned model")
+                actions = torch.from_numpy(np.asarray(seq.actions[t0:t0 + frames - 1], np.float32))[None]
+            logits = model(codes, [seq.text], actions)
+            losses.append(next_frame_loss(logits, codes).item())
+            hit = logits[:, :-1].argmax(-1) == codes[:, 1:]
+            change = codes[:, 1:] != codes[:, :-1]
+            right, total = right + int(hit.sum()), total + hit.numel()
+            moved, moved_right = moved + int(change.sum()), moved_right + int((hit & change).sum())
+    model.train(was_training)
+    if not losses:
+        raise ValueError(f"no sequence has {frames} latent frames")
+    return {"windows": len(losses), "loss": float(np.mean(losses)), "accuracy": right / total,
+            "changed_accuracy": moved_right / moved if moved else float("nan")}
+
+
 def own_inputs(model: WorldModel, codes: torch.Tensor, texts: list[str], actions: torch.Tensor | None,
                share: float, gen: torch.Generator) -> torch.Tensor:
     """Inputs for windows that read the model's own frames instead of the true ones.

@@ -18,6 +18,7 @@ from models.world_model import preset as world_preset
 from schemas.settings import Settings
 from tasks.manifests import dump_yaml, load
 from tasks.sim.episode import rollout
+from tasks.sim.files import write_episode
 from tasks.tokenize import tokens
 from tasks.tokenize.data import square
 from tasks.tokenize.train import TrainConfig, train_tokenizer
@@ -74,9 +75,7 @@ def models(tmp_path_factory, scenario):
     actions = align_actions(ep.time, ep.action, np.arange(n) / 30.0, 4, codes.shape[0], config.action_dim)
     train_world_model(model, [CodeSequence("seed11", codes, "push", actions)],
                       WorldTrainConfig(steps=5, batch_size=2, threads=1, log_every=5))
-    trained_on = folder / "episode_000000"
-    trained_on.mkdir()
-    (trained_on / "meta.json").write_text(json.dumps({"seed": manifest.seed}))
+    trained_on = write_episode(ep, folder, "0" * 64, 0).directory  # videos, steps and meta.json, as simulate writes
     wm_folder = folder / "world_model"
     checkpoints.save_checkpoint(model, wm_folder, {"phase": "posttrain", "size": SIZE, "tokenizer": str(tok_folder),
                                                    "episodes": [str(trained_on)]})
@@ -100,7 +99,10 @@ def test_physics_flow_writes_table_plots_and_lineage(prefect_harness, data_root,
     for name in ("error_vs_horizon", "strip"):
         with Image.open(folder / f"{name}.png") as image:
             assert image.size[0] > 200 and image.size[1] > 100
-    assert "### package position" in (folder / "physics.md").read_text()
+    report = (folder / "physics.md").read_text()
+    assert "### package position" in report and "| held out | 6 |" in report and "| trained | 6 |" in report
+    fitted = body["teacher_forced"]  # one episode each side, 19 latent frames: windows of 8 at 0, 2, ..., 10
+    assert set(fitted) == {"held_out", "trained"} and all(f["windows"] == 6 and f["loss"] > 0 for f in fitted.values())
 
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         _, evaluation = wh.query("SELECT artifact_id, uri FROM artifacts WHERE kind = 'evaluation'")
@@ -118,7 +120,8 @@ def test_physics_flow_writes_table_plots_and_lineage(prefect_harness, data_root,
     assert [p for (p,) in plots] == ["error_vs_horizon", "strip"]
     names = {n for (n,) in names}
     assert {"physics/psnr/h4", "physics/ssim/h8", "physics/floor/psnr/h4", "physics/ceiling/ssim/h8",
-            "physics/shuffled/psnr/h8", "physics/check/beats_floor",
+            "physics/shuffled/psnr/h8", "physics/check/beats_floor", "physics/teacher_forced/trained/loss",
+            "physics/teacher_forced/held_out/changed_accuracy",
             "physics/simulator/sampson_median_px/overhead-overhead_b/h4"} <= names
     assert not any(n.endswith(("/h1", "/h2", "/h3")) for n in names)  # every 4 frames (a latent step)
     assert runs == [("completed",)]

@@ -7,8 +7,8 @@ import torch
 from models.world_model import WorldModel, next_frame_loss, post_trainable, preset
 from tasks.world import checkpoints
 from tasks.world.data import CodeSequence
-from tasks.world.train import (WorldTrainConfig, own_inputs, posttrain, sample_windows, train_world_model,
-                               window_length)
+from tasks.world.train import (WorldTrainConfig, own_inputs, posttrain, sample_windows, teacher_forced,
+                               train_world_model, window_length)
 
 K = 32
 
@@ -86,6 +86,23 @@ def test_self_conditioned_training_learns():
                               self_condition=0.5)
     history = train_world_model(_model(), _sequences(), config)
     assert history[-1]["loss"] < 0.5 * np.log(K) and history[-1]["accuracy"] > history[0]["accuracy"]
+
+
+def test_teacher_forced_scores_show_a_model_that_learnt_its_sequences():
+    seqs = _sequences()
+    rng = np.random.default_rng(1)
+    noise = [CodeSequence(key=f"n{i}", codes=rng.integers(0, K, (6, 4, 4)), text=f"clip {i}") for i in range(3)]
+    model = _model()
+    before = teacher_forced(model, seqs, 4)
+    assert before["windows"] == 3 * 2  # windows at 0 and 2 of each 6-frame sequence
+    train_world_model(model, seqs, WorldTrainConfig(steps=60, batch_size=4, lr=3e-3, warmup_steps=5, threads=1))
+    learnt, other = teacher_forced(model, seqs, 4, stride=1), teacher_forced(model, noise, 4, stride=1)
+    assert learnt["windows"] == other["windows"] == 9 and not model.training
+    assert learnt["loss"] < 0.5 * before["loss"] and learnt["loss"] < 0.5 * other["loss"]
+    # every code moves by one in these sequences: copying the last frame would score 0
+    assert learnt["changed_accuracy"] == learnt["accuracy"] > 0.9 > other["changed_accuracy"]
+    with pytest.raises(ValueError, match="no sequence has 8 latent frames"):
+        teacher_forced(model, seqs, 8)
 
 
 def test_posttraining_starts_from_the_pretrained_model_and_round_trips(tmp_path):
