@@ -27,11 +27,10 @@ from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricReco
 from schemas.settings import Settings
 from tasks import manifests
 from tasks.tokenize import tokens
-from tasks.world import checkpoints, heldout, physics, plots
-from tasks.world import data
+from tasks.world import checkpoints, data, heldout, physics, plots
 from tasks.world.data import CodeSequence, episode_text, read_meta
-from tasks.world.train import teacher_forced
 from tasks.world.geometry import PinholeCamera, sampson_table
+from tasks.world.train import teacher_forced, window_length
 
 STAGE = "evaluate_physics"
 # `worldline simulate` uses seeds seed..seed+N-1 (the shipped manifests' seeds are under 100),
@@ -128,12 +127,12 @@ def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, lis
                     for seed, t in truths]
         out[name] = heldout.predict(model, tokenizer, prepared, context, horizon, stride, move_m, shuffle_seed)
         if not fitted:  # the primary camera comes first
-            window = model.config.max_frames
-            fitted["held_out"] = teacher_forced(model, [CodeSequence(p.key, p.codes, p.text, p.actions)
-                                                        for p in prepared], window, stride)
+            held = [CodeSequence(p.key, p.codes, p.text, p.actions) for p in prepared]
+            window = window_length(held, model.config.max_frames)
+            fitted["held_out"] = teacher_forced(model, held, window, stride)
             seen = data.load_episodes(trained[:len(prepared)], tokenizer, size, [name], model.config.action_dim,
                                       text, tokenizer_id, root)
-            if seen:
+            if any(s.frames >= window for s in seen):
                 fitted["trained"] = teacher_forced(model, seen, window, stride)
     return out, fitted
 
