@@ -121,20 +121,20 @@ def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, lis
     model, tokenizer = checkpoints.load_checkpoint(wm_folder), tokens.load_checkpoint(tok_folder)
     if not model.config.action_conditioned:
         raise ValueError(f"{wm_folder}: not post-trained with actions; give a post-trained world model")
-    out, fitted = {}, {}
+    out, memorising = {}, {}
     for name, truths in per_camera.items():
         prepared = [heldout.prepare(f"seed{seed}", t, cameras[name], tokenizer, size, model.config.action_dim, text)
                     for seed, t in truths]
         out[name] = heldout.predict(model, tokenizer, prepared, context, horizon, stride, move_m, shuffle_seed)
-        if not fitted:  # the primary camera comes first
+        if not memorising:  # the primary camera comes first
             held = [CodeSequence(p.key, p.codes, p.text, p.actions) for p in prepared]
             window = window_length(held, model.config.max_frames)
-            fitted["held_out"] = teacher_forced(model, held, window, stride)
+            memorising["held_out"] = teacher_forced(model, held, window, stride)
             seen = data.load_episodes(trained[:len(prepared)], tokenizer, size, [name], model.config.action_dim,
                                       text, tokenizer_id, root)
             if any(s.frames >= window for s in seen):
-                fitted["trained"] = teacher_forced(model, seen, window, stride)
-    return out, fitted
+                memorising["trained"] = teacher_forced(model, seen, window, stride)
+    return out, memorising
 
 
 def _fmt(v, digits=2) -> str:
@@ -148,7 +148,7 @@ def _detail(check: dict) -> str:
 
 
 def report_body(rows: list[dict], every: int, checks: dict, counts: dict, sampson: list[dict],
-                fitted: dict | None = None) -> str:
+                memorising: dict | None = None) -> str:
     by = {(r["horizon"], r["method"]): r for r in rows}
     hs = sorted({h for h, _ in by if h % every == 0})
     ms = physics.METHODS
@@ -167,12 +167,12 @@ def report_body(rows: list[dict], every: int, checks: dict, counts: dict, sampso
             f"### package position (windows where it moves)\n\n{where}\n\n### checks\n\n"
             + markdown_table(("check", "passed", "detail"),
                              [(k, "yes" if v["passed"] else "no", _detail(v)) for k, v in checks.items()]))
-    if fitted:
+    if memorising:
         text += ("\n\n### next frame from the true frames: held-out against trained-on episodes\n\n"
                  "A model that has memorised its episodes scores far better on them than on new ones.\n\n"
                  + markdown_table(("episodes", "windows", "loss (nats)", "accuracy", "changed codes right"),
                                   [(name.replace("_", " "), f["windows"], _fmt(f["loss"], 3), _fmt(f["accuracy"], 3),
-                                    _fmt(f["changed_accuracy"], 3)) for name, f in fitted.items()]))
+                                    _fmt(f["changed_accuracy"], 3)) for name, f in memorising.items()]))
     if sampson:
         text += "\n\n### Sampson error between cameras (px, ORB matches)\n\n" + markdown_table(
             ("pair", "h", "source", "matches", "mean", "median"),
@@ -182,7 +182,7 @@ def report_body(rows: list[dict], every: int, checks: dict, counts: dict, sampso
 
 
 def _metrics(rows: list[dict], sampson: list[dict], checks: dict, every: int,
-             fitted: dict | None = None) -> list[tuple[str, float]]:
+             memorising: dict | None = None) -> list[tuple[str, float]]:
     out = []
     for r in rows:
         if r["horizon"] % every:
@@ -197,7 +197,7 @@ def _metrics(rows: list[dict], sampson: list[dict], checks: dict, every: int,
             out.append((f"{prefix}/sampson_median_px/{r['pair']}/h{r['horizon']}", r["median_px"]))
             out.append((f"{prefix}/sampson_mean_px/{r['pair']}/h{r['horizon']}", r["mean_px"]))
     out += [(f"physics/check/{k}", float(v["passed"])) for k, v in checks.items()]
-    out += [(f"physics/teacher_forced/{name}/{key}", f[key]) for name, f in (fitted or {}).items()
+    out += [(f"physics/teacher_forced/{name}/{key}", f[key]) for name, f in (memorising or {}).items()
             for key in ("loss", "accuracy", "changed_accuracy") if np.isfinite(f[key])]
     return out
 
@@ -316,7 +316,7 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
                       for name in [primary.name, *others]}
         cameras = {c.name: PinholeCamera.from_manifest(c) for c in world}
         text = episode_text(scenario.task.instruction, [s.kind for s in scenario.stressors])
-        windows, fitted = predict_heldout(wm_folder, tok_folder, per_camera, cameras, size, text, context, horizon,
+        windows, memorising = predict_heldout(wm_folder, tok_folder, per_camera, cameras, size, text, context, horizon,
                                           stride, move_threshold_cm / 100, shuffle_seed, trained_folders(config, root),
                                           tok_id, root)
         main = windows[primary.name]
@@ -330,7 +330,7 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
         reported = sorted({r["horizon"] for r in rows if r["horizon"] % every == 0})
         sampson = two_view_rows(windows, primary.name, cameras, reported)
         counts = window_counts(main, seeds)
-        body = report_body(rows, every, checks, counts, sampson, fitted)
+        body = report_body(rows, every, checks, counts, sampson, memorising)
         files = write_outputs(root, evaluation_id, rows, main, every, body)
         summary = {"run_id": run.run_id, "evaluation_id": evaluation_id, "world_model_id": wm_id,
                    "tokenizer_id": tok_id, "folder": str(files["result"].parent),
@@ -340,13 +340,13 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
                                                "checks": checks, "counts": counts,
                                                "windows": [{"key": w.key, "moved": w.moved, "tracked": w.tracked,
                                                             **w.info} for w in main],
-                                               "teacher_forced": fitted}, indent=1, default=float))
+                                               "teacher_forced": memorising}, indent=1, default=float))
         stage = StageRunRecord(stage_run_id=run.stage_run_id(STAGE, key), run_id=run.run_id, stage=STAGE,
                                input_key=key, manifest_hash=run.manifest_hash, n_in=len(seeds), n_out=1,
                                seconds=round(time.perf_counter() - t0, 3), attrs={"evaluation_id": evaluation_id})
         run.write(evaluation_lineage(root, evaluation_id, files, stage, wm_id, tok_id, run.manifest_hash,
                                      {"evaluation": "physics", "seeds": seeds, "camera": primary.name,
-                                      **summary["checks"]}, _metrics(rows, sampson, checks, every, fitted)))
+                                      **summary["checks"]}, _metrics(rows, sampson, checks, every, memorising)))
         publish("physics", f"{scenario.name}: world model {wm_id[:12]} on {len(seeds)} held-out episodes",
                 body, "world model against the simulator: per-horizon image, position and IoU errors")
         print(f"evaluation {evaluation_id}: " + ", ".join(f"{k} {'passed' if v else 'failed'}"

@@ -56,9 +56,10 @@ class CurateConfig(BaseModel):
         """This config for ``videos`` sources on a pool of ``workers``: when every worker has a
         video of its own, each video is decoded on one thread, since FFmpeg's frame threads
         then add only their own overhead (bench/curate_speed.py, 5 videos on 2 workers: the
-        curation's CPU fell from 177.6 to 156.8 s, the codec work alone's from 128.3 to 121.1). Fewer videos than workers keep frame threads,
-        so one video still uses every core. Threading set in the config is left alone; it
-        never changes a result, so it is not part of any key."""
+        curation's CPU fell from 177.6 to 156.8 s, the codec work alone's from 128.3 to
+        121.1). Fewer videos than workers keep frame threads, so one video still uses every
+        core. Threading set in the config is left alone; it never changes a result, so it is
+        not part of any key."""
         if workers < 2 or videos < workers:
             return self
         update = {}
