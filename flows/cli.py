@@ -38,6 +38,15 @@ def _load_or_exit(path: Path):
         _fail(str(exc))
 
 
+def _config_or_exit(path: Path | None):
+    from tasks.curate.config import ConfigError, load_config
+
+    try:
+        return load_config(path)
+    except ConfigError as exc:
+        _fail(str(exc))
+
+
 def _print_rows(cols: list[str], rows: list[tuple], fmt: str, title: str | None = None) -> None:
     if fmt == "json":
         out.print_json(json.dumps([dict(zip(cols, r)) for r in rows], default=str))
@@ -212,6 +221,7 @@ def curate(
     """Curate raw videos into Parquet shards (Prefect flow `curate`); exit 1 if inputs were quarantined."""
     if manifest is not None:
         _load_or_exit(manifest)
+    _config_or_exit(config)
     from flows.curate import curate as curate_flow
 
     result = curate_flow([str(p) for p in inputs], str(manifest) if manifest else None, str(config) if config else None)
@@ -234,11 +244,10 @@ def _video_or_exit(video: Path):
 def scenes(video: Path, as_json: bool = typer.Option(False, "--json", help="print JSON"),
            config: Optional[Path] = typer.Option(None, help="YAML overrides of CurateConfig")) -> None:
     """Print the scenes the curate flow detects (start and end frame and time), with its own code."""
-    from tasks.curate.config import load_config
     from tasks.curate.scenes import detect_scenes
 
     _video_or_exit(video)
-    cfg = load_config(config)
+    cfg = _config_or_exit(config)
     found = [s.summary() for s in detect_scenes(video, cfg.scenes, cfg.analysis, include_rejected=True)]
     if as_json:
         out.print_json(json.dumps({"video": str(video), "scenes": found}))
@@ -253,11 +262,10 @@ def inspect(video: Path, as_json: bool = typer.Option(False, "--json", help="pri
     """Each scene's scores, tags, caption and verdict, exactly as the curate flow decides them."""
     from schemas.hashing import sha256_file
     from tasks.curate.analyse import analyse_video
-    from tasks.curate.config import load_config
 
     _video_or_exit(video)
     scenario = _load_or_exit(manifest) if manifest else None
-    result = analyse_video(video, sha256_file(str(video)), load_config(config), scenario)
+    result = analyse_video(video, sha256_file(str(video)), _config_or_exit(config), scenario)
     rows = [{"clip_id": c.clip_id, "start_frame": c.start_frame, "end_frame": c.end_frame,
              "start_s": round(c.start_s, 3), "end_s": round(c.end_s, 3), "kept": c.kept,
              "stage": c.reject_stage, "reason": c.reject_reason, "tags": list(c.tags),

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TypeVar
 
 import yaml
-from pydantic import ValidationError
+from pydantic import BaseModel, ValidationError
 
 from schemas.hashing import canonical_json
 from schemas.manifest import ScenarioManifest, manifest_hash
@@ -15,6 +16,7 @@ from tasks.guard.text import GuardError, check_fields
 MAX_BYTES = 256 * 1024
 MAX_NODES = 5_000
 MAX_DEPTH = 16
+Model = TypeVar("Model", bound=BaseModel)
 
 
 class ManifestError(ValueError):
@@ -75,16 +77,17 @@ def safe_mapping(text: str, where: str, what: str = "manifest", error: type[Valu
     return data
 
 
-def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:
-    data = safe_mapping(text, where)
+def validated(model: type[Model], data: dict, where: str, error: type[ValueError] = ManifestError) -> Model:
+    """``model`` validated from ``data``; ``error`` names ``where``, each field and its problem otherwise."""
     try:
-        manifest = ScenarioManifest.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
-        problems = []
-        for err in exc.errors():
-            field = ".".join(str(p) for p in err["loc"]) or "(top level)"
-            problems.append(f"{field}: {err['msg']}")
-        raise ManifestError(f"{where}: {'; '.join(problems)}") from None
+        problems = [f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors()]
+        raise error(f"{where}: {'; '.join(problems)}") from None
+
+
+def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:
+    manifest = validated(ScenarioManifest, safe_mapping(text, where), where)
     try:
         check_fields(manifest)  # the pre-guard: every text field, after validation (issue 10)
     except GuardError as exc:
@@ -95,6 +98,8 @@ def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:
 def read_text(path: Path, error: type[ValueError] = ManifestError) -> str:
     """A small UTF-8 YAML file's text; ``error`` names the file and the problem otherwise."""
     try:
+        if not path.exists():
+            raise error(f"{path}: no such file")
         if not path.is_file():
             raise error(f"{path}: not a file")
         if path.stat().st_size > MAX_BYTES:

@@ -7,6 +7,7 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict
 
 from schemas.hashing import content_hash
+from tasks.manifests import read_text, safe_mapping, validated
 from tasks.curate.captions import CaptionConfig
 from tasks.curate.decode import AnalysisConfig
 from tasks.curate.dedup import DedupConfig
@@ -74,13 +75,15 @@ class CurateConfig(BaseModel):
 DECODER_THREADS = {"analysis": {"thread_type", "threads"}, "encode": {"decode_threads", "decode_thread_type"}}
 
 
-def load_config(path: Path | None) -> CurateConfig:
-    """A YAML file of overrides (safe loading), or the defaults."""
+class ConfigError(ValueError):
+    """One line: the file, the field and the problem."""
+
+
+def load_config(path: Path | str | None) -> CurateConfig:
+    """A YAML file of overrides, read like a manifest (safe YAML only), or the defaults.
+    Raises ConfigError naming the file and each field's problem."""
     if path is None:
         return CurateConfig()
-    import yaml
-
-    data = yaml.safe_load(Path(path).read_text()) or {}
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: curate config must be a mapping")
-    return CurateConfig.model_validate(data)
+    where = str(path)
+    return validated(CurateConfig, safe_mapping(read_text(Path(path), ConfigError), where, "curate config", ConfigError),
+                     where, ConfigError)

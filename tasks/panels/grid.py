@@ -4,14 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from pydantic import ValidationError
-
 from schemas.manifest import (CameraJitter, DimLight, Distractors, ForkliftCrossing, Occluder, ScenarioManifest,
                               manifest_hash)
 from schemas.panel import PanelSpec, PanelVariant, StressorCell, StressorGrid, contract_hash, panel_contract
 from tasks.guard.text import GuardError, check_fields
 # The one safe YAML path (no aliases, bounded size and depth) that manifests are read with.
-from tasks.manifests import read_text, safe_mapping
+from tasks.manifests import read_text, safe_mapping, validated
 
 # A forklift lane that crosses each task's view without entering the workcell (x of the lane, m).
 FORKLIFT_LANE = {"bin_pick": -0.9, "push": 1.2, "drive": 3.0}
@@ -38,12 +36,7 @@ def default_grid(parent: ScenarioManifest, episodes: int = 2) -> StressorGrid:
 
 def parse_grid(text: str, where: str = "<grid>") -> StressorGrid:
     """A grid from YAML, read like a manifest (safe YAML only) and pre-guarded (its names)."""
-    data = safe_mapping(text, where, "grid", GridError)
-    try:
-        grid = StressorGrid.model_validate(data)
-    except ValidationError as exc:
-        problems = [f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors()]
-        raise GridError(f"{where}: {'; '.join(problems)}") from None
+    grid = validated(StressorGrid, safe_mapping(text, where, "grid", GridError), where, GridError)
     try:
         check_fields(grid)
     except GuardError as exc:
@@ -65,11 +58,7 @@ def variant_manifest(parent: ScenarioManifest, grid: StressorGrid, cell: Stresso
                 description=f"panel variant {cell.name!r} ({grid.name}) of {parent.name}",
                 stressors=[s.model_dump(mode="json") for s in stressors],
                 seed=parent.seed if grid.seed is None else grid.seed, parent=manifest_hash(parent))
-    try:
-        return ScenarioManifest.model_validate(body)
-    except ValidationError as exc:
-        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors())
-        raise GridError(f"cell {cell.name!r}: the variant is not a valid manifest: {problems}") from None
+    return validated(ScenarioManifest, body, f"cell {cell.name!r}: the variant is not a valid manifest", GridError)
 
 
 def expand(parent: ScenarioManifest, grid: StressorGrid) -> tuple[PanelSpec, list[ScenarioManifest]]:

@@ -54,3 +54,17 @@ def test_console_script_runs():
     result = subprocess.run([sys.executable, "-m", "flows.cli", "manifest", "hash", str(GOOD)],
                             capture_output=True, text=True, cwd=REPO, timeout=120)
     assert result.returncode == 0 and len(result.stdout.strip()) == 64
+
+
+def test_invalid_curate_config_is_one_line_exit_2_and_nothing_written(tmp_path, data_root):
+    from tests.support import scene_frames, write_video
+
+    video = write_video(tmp_path / "clip.mp4", scene_frames(0, n=8))
+    bad = tmp_path / "curate.yaml"
+    bad.write_text("scenes: {detectr: content}\n")
+    for args in (["scenes", str(video)], ["inspect", str(video)], ["curate", str(video)]):
+        result = runner.invoke(app, [*args, "--config", str(bad)])
+        assert result.exit_code == 2, args
+        lines = [line for line in result.output.splitlines() if line.strip()]
+        assert len(lines) == 1 and str(bad) in lines[0] and "scenes.detectr" in lines[0], result.output
+    assert not (data_root / "lineage.duckdb").exists()

@@ -50,7 +50,7 @@ def test_huge_file_is_refused_without_parsing(tmp_path):
 def test_directory_and_missing_file(tmp_path):
     with pytest.raises(ManifestError, match="not a file"):
         load(tmp_path)
-    with pytest.raises(ManifestError, match="not a file"):
+    with pytest.raises(ManifestError, match="missing.yaml: no such file"):
         load(tmp_path / "missing.yaml")
 
 
