@@ -36,7 +36,7 @@ from schemas import paths  # noqa: E402
 from tasks.corpus.config import DEFECT_LABELS, FILTER_GROUPS, CorpusConfig  # noqa: E402
 from tasks.corpus.generate import VIDEO_MINUTES, generate_corpus  # noqa: E402
 from tasks.curate import dedup  # noqa: E402
-from tasks.curate.config import CurateConfig  # noqa: E402
+from tasks.curate.config import ConfigError, CurateConfig, load_config  # noqa: E402
 from tasks.curate.decode import analysis_frames, probe  # noqa: E402
 from tasks.curate.filters import precision_recall, run_filters  # noqa: E402
 from tasks.curate.scenes import SceneSplitter, boundaries, cut_f1  # noqa: E402
@@ -184,6 +184,7 @@ def main() -> None:
     ap.add_argument("--size", default="320x180")
     ap.add_argument("--corpus", type=Path, default=None, help="folder to keep and reuse generated footage")
     ap.add_argument("--dump", type=Path, default=None, help="write every segment's scores and verdicts as JSON")
+    ap.add_argument("--config", type=Path, default=None, help="YAML of CurateConfig overrides (as `worldline curate`)")
     args = ap.parse_args()
     tuned = sorted(set(args.seeds) & set(TUNING_SEEDS))
     if tuned and not args.tuning:
@@ -191,7 +192,10 @@ def main() -> None:
                  "unseen footage. Use held-out seeds, or pass --tuning to look at them anyway.")
     banner = "TUNING SEEDS (thresholds were chosen on these; NOT a held-out result)" if tuned else "held-out seeds"
     width, height = map(int, args.size.split("x"))
-    config = CurateConfig()
+    try:
+        config = load_config(args.config)
+    except ConfigError as exc:
+        sys.exit(str(exc))
     root = args.corpus or Path(__import__("tempfile").mkdtemp(prefix="wl-quality-"))
     t0 = time.perf_counter()
     print(f"{banner}: {args.seeds}, {args.minutes} min each at {width}x{height} 30 fps "
