@@ -1,6 +1,7 @@
 """Checkpoint files, one layout for every model: ``model.safetensors`` (its architecture JSON
 in the header metadata under ``key``) and ``config.json`` (``{key: architecture, **extra}``),
-each written atomically, so a crash never leaves a half-written checkpoint."""
+each written atomically, so a crash never leaves a half-written checkpoint, and read back with
+one-line errors naming the file and the problem."""
 
 from __future__ import annotations
 
@@ -8,10 +9,19 @@ import json
 import os
 from pathlib import Path
 
-from safetensors.torch import save_file
+from typing import TypeVar
+
+from pydantic import BaseModel, ValidationError
+from safetensors import SafetensorError
+from safetensors.torch import load_file, save_file
 from torch import nn
 
 WEIGHTS_FILE, CONFIG_FILE = "model.safetensors", "config.json"
+Config = TypeVar("Config", bound=BaseModel)
+
+
+class CheckpointError(ValueError):
+    """One line: the checkpoint file and what is wrong with it."""
 
 
 def write_checkpoint(model: nn.Module, folder: Path, key: str, extra: dict | None = None) -> tuple[Path, Path]:
@@ -28,3 +38,42 @@ def write_checkpoint(model: nn.Module, folder: Path, key: str, extra: dict | Non
     tmp.write_text(json.dumps(body, indent=2, sort_keys=True))
     os.replace(tmp, config)
     return weights, config
+
+
+
+def read_config(folder: Path, key: str, what: str = "checkpoint") -> dict:
+    """``config.json`` of a checkpoint folder, checked to be a mapping holding ``key``."""
+    path = Path(folder) / CONFIG_FILE
+    if not path.is_file():
+        raise CheckpointError(f"{folder}: not a {what} folder (no {CONFIG_FILE})")
+    try:
+        body = json.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise CheckpointError(f"{path}: unreadable ({exc})") from None
+    if not isinstance(body, dict) or not isinstance(body.get(key), dict):
+        raise CheckpointError(f"{path}: not a {what} config (no {key!r} mapping)")
+    return body
+
+
+def model_config(config_type: type[Config], body: dict, key: str, folder: Path) -> Config:
+    """The architecture ``body[key]`` validated as ``config_type``; errors name the config file."""
+    try:
+        return config_type.model_validate(body[key])
+    except ValidationError as exc:
+        problems = "; ".join(f"{key}.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors())
+        raise CheckpointError(f"{Path(folder) / CONFIG_FILE}: {problems}") from None
+
+
+def load_weights(model: nn.Module, folder: Path) -> nn.Module:
+    """``model`` with the weights of ``folder``'s ``model.safetensors``, in eval mode; errors name the file."""
+    path = Path(folder) / WEIGHTS_FILE
+    if not path.is_file():
+        raise CheckpointError(f"{folder}: no {WEIGHTS_FILE}")
+    try:
+        model.load_state_dict(load_file(str(path)))
+    except (OSError, SafetensorError) as exc:
+        raise CheckpointError(f"{path}: unreadable weights ({exc})") from None
+    except RuntimeError as exc:  # torch: tensors missing, unexpected or of another shape
+        problem = " ".join(str(exc).split())[:200]
+        raise CheckpointError(f"{path}: the weights do not fit the architecture in {CONFIG_FILE} ({problem})") from None
+    return model.eval()

@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import copy
 import hashlib
-import json
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -25,14 +24,14 @@ import mujoco
 import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
-from safetensors.torch import load_file
 from scipy import special
 
 import tasks.sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from models.bc_policy import BCConfig, BCPolicyNet, preset
 from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.panel import PanelContract, contract_hash, panel_contract
-from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, write_checkpoint
+from tasks.checkpoint_files import (WEIGHTS_FILE, CheckpointError, load_weights, model_config, read_config,
+                                     write_checkpoint)
 from tasks.policy.base import Policy
 from tasks.policy.features import FEATURES_VERSION, arm_features, obs_size
 from tasks.sim.control import MAX_STEP, MAX_YAW_STEP, ArmController, make_controller
@@ -176,15 +175,10 @@ def save_checkpoint(model: BCPolicyNet, folder: Path, manifest: ScenarioManifest
 
 
 def load_checkpoint(folder: Path) -> tuple[BCPolicyNet, dict[str, Any]]:
-    folder = Path(folder)
-    if not (folder / CONFIG_FILE).is_file() or not (folder / WEIGHTS_FILE).is_file():
-        raise FileNotFoundError(f"{folder}: not a behaviour-cloning checkpoint (needs {WEIGHTS_FILE} and {CONFIG_FILE})")
-    meta = json.loads((folder / CONFIG_FILE).read_text())
+    meta = read_config(folder, "bc", "behaviour-cloning checkpoint")
     if meta.get("features_version") != FEATURES_VERSION:
-        raise ValueError(f"{folder}: features version {meta.get('features_version')} is not {FEATURES_VERSION}")
-    model = BCPolicyNet(BCConfig.model_validate(meta["bc"]))
-    model.load_state_dict(load_file(str(folder / WEIGHTS_FILE)))
-    return model.eval(), meta
+        raise CheckpointError(f"{folder}: features version {meta.get('features_version')} is not {FEATURES_VERSION}")
+    return load_weights(BCPolicyNet(model_config(BCConfig, meta, "bc", folder)), folder), meta
 
 
 class BCController:

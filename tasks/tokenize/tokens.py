@@ -11,7 +11,6 @@ give the same bytes.
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,13 +19,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 import torch
-from safetensors.torch import load_file
 
 from models.tokenizer import TokenizerConfig, VideoTokenizer
 from schemas import paths
 from schemas.hashing import stable_id
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord
-from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, write_checkpoint
+from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, load_weights, model_config, read_config, write_checkpoint
 from tasks.tokenize.data import Clip, usable_frames
 from tasks.tokenize.train import to_tensor
 
@@ -57,10 +55,9 @@ def save_checkpoint(model: VideoTokenizer, folder: Path, extra: dict | None = No
 
 
 def load_checkpoint(folder: Path) -> VideoTokenizer:
-    config = TokenizerConfig.model_validate(json.loads((Path(folder) / CONFIG_FILE).read_text())["tokenizer"])
-    model = VideoTokenizer(config)
-    model.load_state_dict(load_file(str(Path(folder) / WEIGHTS_FILE)))
-    return model.eval()
+    """The tokenizer a checkpoint folder holds, in eval mode (CheckpointError naming the file otherwise)."""
+    body = read_config(folder, "tokenizer", "tokenizer checkpoint")
+    return load_weights(VideoTokenizer(model_config(TokenizerConfig, body, "tokenizer", folder)), folder)
 
 
 @torch.no_grad()

@@ -8,14 +8,13 @@ holds the model config too, so the weights file alone is enough to rebuild the m
 from __future__ import annotations
 
 import hashlib
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
-from safetensors.torch import load_file
 
 from models.world_model import WorldModel, WorldModelConfig
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord
+from tasks import checkpoint_files
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, write_checkpoint
 
 METRICS = ("loss", "accuracy")  # history fields recorded as train_<name> per logged step
@@ -27,15 +26,14 @@ def save_checkpoint(model: WorldModel, folder: Path, extra: dict | None = None) 
 
 
 def read_config(folder: Path) -> dict:
-    return json.loads((Path(folder) / CONFIG_FILE).read_text())
+    """A world-model checkpoint's config.json (CheckpointError naming the file otherwise)."""
+    return checkpoint_files.read_config(folder, "world_model", "world-model checkpoint")
 
 
 def load_checkpoint(folder: Path) -> WorldModel:
     """The model a checkpoint folder holds (with its action encoder when post-trained), in eval mode."""
-    config = WorldModelConfig.model_validate(read_config(folder)["world_model"])
-    model = WorldModel(config)
-    model.load_state_dict(load_file(str(Path(folder) / WEIGHTS_FILE)))
-    return model.eval()
+    config = checkpoint_files.model_config(WorldModelConfig, read_config(folder), "world_model", folder)
+    return checkpoint_files.load_weights(WorldModel(config), folder)
 
 
 def _sha256(path: Path) -> str:
