@@ -20,8 +20,10 @@ from pathlib import Path
 import numpy as np
 
 import mujoco
-from schemas.manifest import Camera, ScenarioManifest
-from schemas.manifest import Frozen
+from pydantic import Field
+
+from schemas.manifest import Camera, Frozen, ScenarioManifest
+from schemas.settings import Settings
 from tasks.sim import robots, stressors
 from tasks.sim.kinematics import yaw_quat
 
@@ -39,8 +41,25 @@ class SimConfig(Frozen):
 
     timestep: float = 0.002
     control_hz: float = 50.0
-    robots_root: Path = Path("../shared/data/robots")
+    # WORLDLINE_ROBOTS_ROOT, as the process had it when it made this config (the functions'
+    # default configs: when this module was imported).
+    robots_root: Path = Field(default_factory=lambda: Settings().robots_root)
     gripper_mjcf: str | None = "robotiq_2f85/2f85.xml"
+
+
+def check_assets(manifest: ScenarioManifest, config: SimConfig | None = None) -> None:
+    """FileNotFoundError naming the field and the path when an MJCF the scene needs is missing."""
+    if manifest.embodiment.kind != "arm" or not manifest.embodiment.mjcf:
+        return
+    config = config or SimConfig()
+    root = Path(config.robots_root)
+    wanted = [("embodiment.mjcf", manifest.embodiment.mjcf)]
+    if config.gripper_mjcf:
+        wanted.append(("gripper", config.gripper_mjcf))
+    for field_name, relative in wanted:
+        if not (root / relative).is_file():
+            raise FileNotFoundError(f"{field_name} {relative!r}: no robot MJCF at {root / relative} "
+                                    f"(MJCF paths resolve under WORLDLINE_ROBOTS_ROOT, now {root})")
 
 
 @dataclass(frozen=True)
@@ -171,6 +190,7 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
     arm = base = None
     if kind == "arm":
         if manifest.embodiment.mjcf:
+            check_assets(manifest, config)
             root = Path(config.robots_root)
             gripper = root / config.gripper_mjcf if config.gripper_mjcf else None
             arm = robots.add_mjcf_arm(spec, root / manifest.embodiment.mjcf, gripper)

@@ -84,5 +84,20 @@ def test_missing_robot_mjcf_names_the_file(tmp_path):
 
     manifest = load(MANIFESTS / "bin_pick_dim_forklift.yaml")
     arm = Embodiment(kind="arm", robot="ur5e", mjcf="nowhere/ur5e.xml")
-    with pytest.raises(FileNotFoundError, match="nowhere/ur5e.xml"):
+    with pytest.raises(FileNotFoundError, match="embodiment.mjcf 'nowhere/ur5e.xml': no robot MJCF at"):
         build_scene(manifest.model_copy(update={"embodiment": arm}), 0, SimConfig(robots_root=tmp_path))
+
+
+def test_robots_resolve_under_worldline_robots_root(tmp_path, monkeypatch):
+    from tasks.sim.scene import SimConfig, check_assets
+
+    manifest = load(MANIFESTS / "bin_pick_dim_forklift.yaml")
+    arm = manifest.model_copy(update={"embodiment": Embodiment(kind="arm", robot="ur5e", mjcf="ur5e/ur5e.xml")})
+    monkeypatch.setenv("WORLDLINE_ROBOTS_ROOT", str(tmp_path))
+    assert SimConfig().robots_root == tmp_path
+    check_assets(manifest)  # the built-in arm needs no files
+    (tmp_path / "ur5e").mkdir()
+    (tmp_path / "ur5e" / "ur5e.xml").write_text("<mujoco/>")
+    with pytest.raises(FileNotFoundError, match="gripper 'robotiq_2f85/2f85.xml': no robot MJCF at"):
+        check_assets(arm)
+    check_assets(arm, SimConfig(gripper_mjcf=None))
