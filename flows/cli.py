@@ -38,6 +38,74 @@ def _load_or_exit(path: Path):
         _fail(str(exc))
 
 
+def _simulable_or_exit(path: Path):
+    """A manifest whose robot files are all there (checked before any flow simulates it)."""
+    from tasks.sim.scene import check_assets
+
+    manifest = _load_or_exit(path)
+    try:
+        check_assets(manifest)
+    except FileNotFoundError as exc:
+        _fail(f"{path}: {exc}")
+    return manifest
+
+
+def _checkpoint_or_exit(resolve):
+    """``resolve(warehouse, data_root)`` with lineage open read-only (None before any flow has
+    written it), or exit 2 with its one-line error: names are checked before a flow starts."""
+    from tasks.checkpoint_files import CheckpointError
+    from warehouse.store import Warehouse, WarehouseError
+
+    settings = Settings()
+    try:
+        if not settings.warehouse_path.exists():
+            return resolve(None, settings.data_root)
+        with Warehouse(settings.warehouse_path, read_only=True) as warehouse:
+            return resolve(warehouse, settings.data_root)
+    except (FileNotFoundError, CheckpointError, WarehouseError) as exc:
+        _fail(str(exc))
+
+
+def _world_model_or_exit(name: str | None) -> str:
+    from flows.lookup import world_model_folder
+
+    return str(_checkpoint_or_exit(lambda warehouse, root: world_model_folder(warehouse, root, name)))
+
+
+def _tokenizer_or_exit(name: str, variant: str | None = "discrete") -> None:
+    """Check that a tokenizer checkpoint folder or id loads (the flow resolves it again)."""
+    from flows.lookup import checkpoint_folder, tokenizer_condition
+    from tasks.checkpoint_files import CheckpointError
+    from tasks.tokenize import tokens
+
+    what = f"{variant} tokenizer" if variant else "tokenizer"
+    folder = _checkpoint_or_exit(lambda warehouse, root: checkpoint_folder(
+        warehouse, root, name, tokenizer_condition(variant), what))
+    try:
+        config = tokens.load_checkpoint(folder).config
+    except CheckpointError as exc:
+        _fail(str(exc))
+    if variant and config.variant != variant:
+        _fail(f"{name}: a {config.variant} tokenizer; a {variant} one is needed here")
+
+
+def _policies_or_exit(names: list[str], behaviour_cloning: bool = False) -> list[str]:
+    """Policy names with ``bc:ID`` resolved to ``bc:FOLDER``, each loaded once to check it."""
+    from flows.lookup import policy_spec
+    from tasks.policy.specs import PolicySpecError, load_policy
+
+    specs = [_checkpoint_or_exit(lambda warehouse, root, name=name: policy_spec(warehouse, root, name))
+             for name in names]
+    for spec in specs:
+        if behaviour_cloning and not spec.startswith("bc:"):
+            _fail(f"policy {spec!r}: the loop post-trains behaviour-cloning policies (bc:PATH or bc:ID)")
+        try:
+            load_policy(spec)
+        except PolicySpecError as exc:
+            _fail(str(exc))
+    return specs
+
+
 def _config_or_exit(path: Path | None):
     from tasks.curate.config import ConfigError, load_config
 
@@ -108,7 +176,8 @@ def audit(
     artifact: Optional[str] = typer.Option(None, help="artifact id"),
     fmt: str = typer.Option("table", "--format", help="table | csv | json"),
 ) -> None:
-    """Run a shipped audit query (warehouse/audits/NAME.sql) with bound parameters."""
+    """Run a shipped audit query (warehouse/audits/NAME.sql) with bound parameters. A manifest
+    hash or artifact id may be given by its first 12 or more hex digits."""
     from warehouse import audit as audits
     from warehouse.store import Warehouse, WarehouseError
 
@@ -119,16 +188,36 @@ def audit(
                  for n in audits.available()]
         (err if name else out).print("available audits:\n" + "\n".join(lines), highlight=False, markup=False)
         raise typer.Exit(EXIT_INVALID if name else 0)
+    if fmt not in ("table", "csv", "json"):
+        _fail(f"--format {fmt!r}: one of table, csv, json")
     try:
         sql, params = audits.bind(name, {"manifest": manifest, "artifact": artifact})
     except ValueError as exc:
         _fail(str(exc))
     try:
         with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+            ids = (("manifest", "manifests", "manifest_hash"), ("artifact", "artifacts", "artifact_id"))
+            for key, table, column in ids:
+                if key in params:
+                    params[key] = _full_id(wh, table, column, params[key], key)
             cols, rows = wh.query(sql, params)
     except WarehouseError as exc:
         _fail(str(exc))
     _print_rows(cols, rows, fmt, title=f"{name} ({len(rows)} rows)")
+
+
+def _full_id(warehouse, table: str, column: str, given: str, what: str) -> str:
+    """The one full id in ``table`` that starts with ``given`` (12+ hex digits), or ``given``
+    itself when it is a full id, is not hex, or nothing starts with it (the audit then finds nothing)."""
+    from flows.lookup import is_hex_id
+
+    if not is_hex_id(given) or len(given) >= 64:
+        return given
+    _, rows = warehouse.query(f"SELECT DISTINCT {column} FROM {table} WHERE {column} LIKE $p || '%' "
+                              f"ORDER BY 1 LIMIT 2", {"p": given})
+    if len(rows) > 1:
+        _fail(f"--{what} {given}: more than one {what} starts with it ({rows[0][0]}, {rows[1][0]}, ...)")
+    return rows[0][0] if rows else given
 
 
 @app.command()
@@ -164,7 +253,7 @@ def register(paths: list[Path]) -> None:
 @app.command()
 def simulate(manifest: Path, episodes: int = typer.Option(2, min=1, max=10_000, help="episodes (seeds seed..seed+N-1)")) -> None:
     """Simulate a manifest's task in MuJoCo and write episodes (Prefect flow `simulate`)."""
-    _load_or_exit(manifest)
+    _simulable_or_exit(manifest)
     from flows.simulate import simulate as simulate_flow
 
     result = simulate_flow(str(manifest), episodes)
@@ -200,7 +289,8 @@ def demo() -> None:
 
 
 @app.command()
-def server(port: Optional[int] = typer.Option(None, help="API port on 127.0.0.1; a free one when omitted"),
+def server(port: Optional[int] = typer.Option(None, min=1, max=65535,
+                                             help="API port on 127.0.0.1; a free one when omitted"),
            pool: str = typer.Option("worldline-local", help="process work pool the worker polls"),
            deploy: bool = typer.Option(True, "--deploy/--no-deploy", help="apply prefect.yaml (prefect deploy --all)")) -> None:
     """Start a local Prefect server (with UI) and a process worker on 127.0.0.1 until Ctrl-C."""
@@ -304,6 +394,8 @@ def tokenize(
                   f"{PRESETS[preset].spatial_compression}")
     if crop is not None and crop > size:
         _fail(f"--crop: {crop} is larger than --size {size}")
+    if init:
+        _tokenizer_or_exit(init, variant=None)
     from flows.tokenize import shard_files
     from flows.tokenize import tokenize as tokenize_flow
 
@@ -349,11 +441,20 @@ def train(
         _fail(f"--preset: unknown world model preset {preset!r}; known: {', '.join(sorted(PRESETS))}")
     if Path(manifest).suffix in (".yaml", ".yml"):
         _load_or_exit(Path(manifest))
+    if tokenizer:
+        _tokenizer_or_exit(tokenizer)
     from flows.train import episode_folders
     from flows.train import train as train_flow
+    from tasks.world.data import read_meta
 
     try:
-        episode_folders(manifest, Settings().data_root.resolve())
+        folders, _ = episode_folders(manifest, Settings().data_root.resolve())
+    except FileNotFoundError as exc:
+        _fail(str(exc))
+    cameras = read_meta(folders[0]).get("cameras", [])
+    if camera is not None and camera not in cameras:
+        _fail(f"--camera {camera!r}: the episodes of {manifest} have cameras {', '.join(cameras)}")
+    try:
         result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, batch_size=batch, window=window,
                             camera=camera, patch=patch, change_weight=change_weight,
                             self_condition=self_condition)
@@ -371,18 +472,19 @@ def panels(
     grid: Optional[Path] = typer.Option(None, help="stressor grid YAML (schemas/panel.py StressorGrid); "
                                                    "default: nominal, clean, then one stressor at a time"),
     episodes: Optional[int] = typer.Option(None, min=1, max=1000, help="seeds per cell (default: the grid's)"),
-    world_model: Optional[Path] = typer.Option(None, help="world-model checkpoint for side-by-side rollouts"),
+    world_model: Optional[str] = typer.Option(None, help="post-trained world-model checkpoint folder or id, "
+                                                        "for side-by-side rollouts"),
     camera: Optional[str] = typer.Option(None, help="camera shown (default: the first world-mounted one)"),
     guard: bool = typer.Option(True, "--guard/--no-guard", help="text pre-guard and face post-guard"),
 ) -> None:
     """A matched panel: variants differing only in stressors, simulated, contact sheet + MP4 (Prefect flow `panels`)."""
-    parent = _load_or_exit(manifest)
+    parent = _simulable_or_exit(manifest)
     _grid_or_exit(parent, grid, episodes)
+    folder = _world_model_or_exit(world_model) if world_model else None
     from flows.panels import panels as panels_flow
 
     try:
-        result = panels_flow(str(manifest), str(grid) if grid else None, episodes,
-                             str(world_model) if world_model else None, camera, guard)
+        result = panels_flow(str(manifest), str(grid) if grid else None, episodes, folder, camera, guard)
     except ValueError as exc:
         _fail(str(exc))
     cells = ", ".join(f"{v['cell']} {sum(e['success'] for e in v['episodes'])}/{len(v['episodes'])}"
@@ -403,35 +505,33 @@ def _grid_or_exit(parent, grid: Optional[Path], episodes: Optional[int]):
 
 def evaluate_policies_cmd(
     manifest: Path,
-    policy: Optional[list[str]] = typer.Option(None, help="scripted | scripted:NOISE | bc:CHECKPOINT_FOLDER "
-                                                           "(repeat; default: scripted and scripted:0.8)"),
+    policy: Optional[list[str]] = typer.Option(None, help="scripted | scripted:NOISE | bc:CHECKPOINT_FOLDER | "
+                                                           "bc:CHECKPOINT_ID (repeat; default: scripted and "
+                                                           "scripted:0.8)"),
     grid: Optional[Path] = typer.Option(None, help="stressor grid YAML (default: one stressor at a time)"),
     episodes: Optional[int] = typer.Option(None, min=1, max=1000, help="seeds per cell (default: the grid's)"),
     compare: Optional[list[Path]] = typer.Option(None, help="another manifest whose panel is evaluated too "
                                                             "(its contract must match; repeat)"),
-    world_model: Optional[Path] = typer.Option(None, help="world-model checkpoint: verdicts on generated frames"),
+    world_model: Optional[str] = typer.Option(None, help="post-trained world-model checkpoint folder or id: "
+                                                        "verdicts on generated frames"),
     detector: bool = typer.Option(True, "--detector/--no-detector", help="also judge the simulator's renders "
                                                                          "with the frame detector"),
 ) -> None:
     """Policies on a panel: simulator and frame-detector success per stressor cell, their rank
     correlation (Prefect flow `evaluate`); exit 2 when panel contracts differ."""
-    parent = _load_or_exit(manifest)
+    parent = _simulable_or_exit(manifest)
     for other in compare or []:
-        _load_or_exit(other)
+        _simulable_or_exit(other)
     _grid_or_exit(parent, grid, episodes)
     from tasks.panels.contract import PanelContractError
-    from tasks.policy.specs import PolicySpecError, load_policy
 
-    try:
-        for name in policy or []:
-            load_policy(name)
-    except PolicySpecError as exc:
-        _fail(str(exc))
+    specs = _policies_or_exit(policy or [])
+    folder = _world_model_or_exit(world_model) if world_model else None
     from flows.evaluate import evaluate as evaluate_flow
 
     try:
-        result = evaluate_flow(str(manifest), str(grid) if grid else None, episodes, policy or None,
-                               [str(p) for p in compare or []], str(world_model) if world_model else None, detector)
+        result = evaluate_flow(str(manifest), str(grid) if grid else None, episodes, specs or None,
+                               [str(p) for p in compare or []], folder, detector)
     except PanelContractError as exc:
         _fail(str(exc))
     rows = [(e["panel"], e["policy"], r["cell"], r["episodes"], *("-" if r[k] is None else f"{r[k]:.2f}"
@@ -454,7 +554,7 @@ def train_policy_cmd(
     """Behaviour-clone the scripted controller into a small MLP policy (Prefect flow `train-policy`)."""
     from models.bc_policy import PRESETS
 
-    scenario = _load_or_exit(manifest)
+    scenario = _simulable_or_exit(manifest)
     if preset not in PRESETS:
         _fail(f"--preset: unknown policy preset {preset!r}; known: {', '.join(sorted(PRESETS))}")
     if scenario.embodiment.kind != "arm":
@@ -486,11 +586,14 @@ def evaluate_physics_cmd(
     """A world model against MuJoCo on held-out seeds: per-horizon PSNR, SSIM, package position
     error and IoU beside copy-last-frame and the tokenizer's reconstruction, true against
     shuffled actions (Prefect flow `evaluate-physics`)."""
-    _load_or_exit(manifest)
+    _simulable_or_exit(manifest)
+    folder = _world_model_or_exit(world_model)
+    if tokenizer:
+        _tokenizer_or_exit(str(tokenizer))
     from flows.physics import evaluate_physics
 
     try:
-        result = evaluate_physics(str(manifest), world_model, str(tokenizer) if tokenizer else None, episodes,
+        result = evaluate_physics(str(manifest), folder, str(tokenizer) if tokenizer else None, episodes,
                                   first_seed, camera, horizon)
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
@@ -501,7 +604,8 @@ def evaluate_physics_cmd(
 @app.command("loop")
 def loop_cmd(
     manifest: Path,
-    policy: Optional[str] = typer.Option(None, help="bc:CHECKPOINT_FOLDER (default: a weak policy trained in-flow)"),
+    policy: Optional[str] = typer.Option(None, help="bc:CHECKPOINT_FOLDER or bc:CHECKPOINT_ID (default: a weak "
+                                                    "policy trained in-flow)"),
     grid: Optional[Path] = typer.Option(None, help="stressor grid YAML (default: one stressor at a time)"),
     episodes: Optional[int] = typer.Option(None, min=1, max=1000, help="seeds per cell (default: the grid's)"),
     worst: int = typer.Option(1, min=1, max=8, help="how many of the lowest-success cells to derive manifests from"),
@@ -510,18 +614,13 @@ def loop_cmd(
 ) -> None:
     """Failures back into data: the worst stressor cells become derived manifests, simulated,
     curated and post-trained on; success per cell before and after (Prefect flow `loop`)."""
-    parent = _load_or_exit(manifest)
+    parent = _simulable_or_exit(manifest)
     if parent.embodiment.kind != "arm":
         _fail(f"{manifest}: the loop post-trains behaviour cloning, which drives arms; "
               f"this manifest's embodiment is {parent.embodiment.kind!r}")
     _grid_or_exit(parent, grid, episodes)
-    from tasks.policy.specs import PolicySpecError, load_policy
-
     if policy is not None:
-        try:
-            load_policy(policy)
-        except PolicySpecError as exc:
-            _fail(str(exc))
+        policy = _policies_or_exit([policy], behaviour_cloning=True)[0]
     from flows.loop import loop as loop_flow
 
     result = loop_flow(str(manifest), policy, str(grid) if grid else None, episodes, worst, new_episodes, post_steps)

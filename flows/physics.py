@@ -19,6 +19,7 @@ import numpy as np
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
+from flows.lookup import world_model_folder
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, publish
 from schemas import paths
@@ -38,10 +39,6 @@ STAGE = "evaluate_physics"
 HELDOUT_FIRST_SEED = 10_000
 
 
-def _hex(text: str) -> bool:
-    return len(text) >= 12 and all(ch in "0123456789abcdef" for ch in text)
-
-
 def _artifact_id(run: RunContext, path: Path, kind: str, attrs: dict) -> str:
     """The lineage id of a file by its bytes; one lineage has never seen is recorded now."""
     root = run.settings.data_root.resolve()
@@ -56,31 +53,6 @@ def _artifact_id(run: RunContext, path: Path, kind: str, attrs: dict) -> str:
                                                      bytes=path.stat().st_size,
                                                      attrs={**attrs, "registered_by": "evaluate-physics"})]))
     return artifact_id
-
-
-def world_model_folder(run: RunContext, world_model: str | None) -> Path:
-    """A checkpoint folder, a checkpoint id (12+ hex digits), or None for the newest post-trained one."""
-    root = run.settings.data_root.resolve()
-    if world_model and Path(world_model).is_dir():
-        folder = Path(world_model).resolve()
-        if not (folder / checkpoints.CONFIG_FILE).is_file():
-            raise FileNotFoundError(f"{world_model}: not a world-model checkpoint folder "
-                                    f"(no {checkpoints.CONFIG_FILE})")
-        return folder
-    if world_model and not _hex(world_model):
-        raise FileNotFoundError(f"{world_model}: no such checkpoint folder, and not a checkpoint id")
-    select = ("SELECT uri FROM artifacts WHERE kind = 'checkpoint' AND attrs->>'model' = 'world_model' "
-              "AND attrs->>'phase' = 'posttrain' ")
-    if world_model:
-        _, rows = run.warehouse.query(select + "AND artifact_id LIKE $p || '%' LIMIT 2", {"p": world_model})
-        if len(rows) != 1:
-            raise FileNotFoundError(f"world model {world_model}: {'no' if not rows else 'more than one'} "
-                                    "post-trained checkpoint with that id in lineage")
-    else:
-        _, rows = run.warehouse.query(select + "ORDER BY recorded_at DESC, artifact_id LIMIT 1")
-        if not rows:
-            raise FileNotFoundError("no post-trained world model in lineage: run `worldline train` first")
-    return (root / rows[0][0]).parent
 
 
 def trained_folders(config: dict, root: Path) -> list[Path]:
@@ -290,7 +262,7 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
               "first_seed": first_seed, "camera": primary.name, "horizon": horizon, "context": context,
               "stride": stride, "move_threshold_cm": move_threshold_cm, "shuffle_seed": shuffle_seed}
     with recorded_run("evaluate-physics", settings, scenario, source_uri=manifest, params=params) as run:
-        wm_folder = world_model_folder(run, world_model)
+        wm_folder = world_model_folder(run.warehouse, root, world_model)
         config = checkpoints.read_config(wm_folder)
         overlap = trained_seeds(config, root) & set(seeds)
         if overlap:

@@ -13,6 +13,7 @@ from pathlib import Path
 import torch
 from prefect import flow, task
 
+from flows.lookup import checkpoint_by_id, is_hex_id, tokenizer_condition
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table
 from flows.report import publish as publish_report
@@ -33,10 +34,6 @@ STAGE_PRETRAIN, STAGE_POSTTRAIN = "pretrain_world_model", "posttrain_world_model
 # Bumped when post-training learns something different from the same inputs, so an earlier
 # checkpoint is not taken for a finished one. 2: actions divided by their RMS (action_scale).
 POSTTRAIN_RECIPE = 2
-
-
-def _hex(text: str) -> bool:
-    return len(text) >= 12 and all(ch in "0123456789abcdef" for ch in text)
 
 
 def _uri(path: Path, root: Path) -> str:
@@ -79,21 +76,18 @@ def tokenizer_folder(run: RunContext, tokenizer: str | None, variant: str | None
             raise FileNotFoundError(f"{tokenizer}: not a tokenizer checkpoint folder (no {tokens.CONFIG_FILE})")
         checkpoint_id, _ = _known(run, "checkpoint", folder / tokens.WEIGHTS_FILE, root, {"model": "tokenizer"})
         return folder, checkpoint_id
-    if tokenizer and not _hex(tokenizer):
+    if tokenizer and not is_hex_id(tokenizer):
         raise FileNotFoundError(f"{tokenizer}: no such checkpoint folder, and not a checkpoint id")
-    which = "attrs->>'preset' IS NOT NULL" if variant is None else f"attrs->>'variant' = '{variant}'"
-    select = f"SELECT artifact_id, uri FROM artifacts WHERE kind = 'checkpoint' AND {which} AND "
+    which = tokenizer_condition(variant)
     if tokenizer:
-        _, rows = run.warehouse.query(select + "artifact_id LIKE $prefix || '%' LIMIT 2", {"prefix": tokenizer})
-        if len(rows) != 1:
-            kind = f"{variant} tokenizer" if variant else "tokenizer"
-            raise FileNotFoundError(f"tokenizer {tokenizer}: {'no' if not rows else 'more than one'} "
-                                    f"{kind} checkpoint with that id in lineage")
-    else:
-        _, rows = run.warehouse.query(select + "artifact_id IN (SELECT parent_id FROM edges WHERE relation = "
-                                      "'encoded_by') ORDER BY recorded_at DESC, artifact_id LIMIT 1")
-        if not rows:
-            raise FileNotFoundError("no discrete tokenizer with token shards in lineage: run `worldline tokenize` first")
+        checkpoint_id, uri = checkpoint_by_id(run.warehouse, tokenizer, which,
+                                              f"{variant} tokenizer" if variant else "tokenizer")
+        return (root / uri).parent, checkpoint_id
+    _, rows = run.warehouse.query(f"SELECT artifact_id, uri FROM artifacts WHERE kind = 'checkpoint' AND {which} AND "
+                                  "artifact_id IN (SELECT parent_id FROM edges WHERE relation = 'encoded_by') "
+                                  "ORDER BY recorded_at DESC, artifact_id LIMIT 1")
+    if not rows:
+        raise FileNotFoundError("no discrete tokenizer with token shards in lineage: run `worldline tokenize` first")
     return (root / rows[0][1]).parent, rows[0][0]
 
 
@@ -122,7 +116,7 @@ def episode_folders(manifest: str, root: Path):
     if place.is_file():
         scenario = manifests.load(place)
         place = paths.resolve(root, paths.EPISODES_OF_MANIFEST, manifest_hash=manifest_hash(scenario))
-    elif not place.exists() and _hex(manifest):
+    elif not place.exists() and is_hex_id(manifest):
         place = paths.resolve(root, paths.EPISODES_OF_MANIFEST, manifest_hash=manifest)
     found = data.episode_dirs(place)
     if not found:

@@ -82,7 +82,11 @@ def validated(model: type[Model], data: dict, where: str, error: type[ValueError
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        problems = [f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in exc.errors()]
+        errors = exc.errors()
+        # Pydantic also calls a list too short when its only items failed: that is no news.
+        inner = {e["loc"][:k] for e in errors for k in range(len(e["loc"]))}
+        problems = [f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in errors
+                    if not (e["type"] == "too_short" and e["loc"] in inner)]
         raise error(f"{where}: {'; '.join(problems)}") from None
 
 

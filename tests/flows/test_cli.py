@@ -68,3 +68,27 @@ def test_invalid_curate_config_is_one_line_exit_2_and_nothing_written(tmp_path, 
         lines = [line for line in result.output.splitlines() if line.strip()]
         assert len(lines) == 1 and str(bad) in lines[0] and "scenes.detectr" in lines[0], result.output
     assert not (data_root / "lineage.duckdb").exists()
+
+
+def test_a_manifest_whose_robot_files_are_missing_is_refused_before_simulating(tmp_path, data_root, monkeypatch):
+    monkeypatch.setenv("WORLDLINE_ROBOTS_ROOT", str(tmp_path / "robots"))
+    manifest = tmp_path / "ur5e.yaml"
+    manifest.write_text((MANIFESTS / "bin_pick_dim_forklift.yaml").read_text().replace(
+        "robot: builtin_arm", "robot: ur5e\n  mjcf: universal_robots_ur5e/ur5e.xml"))
+    for args in (["simulate", str(manifest)], ["panels", str(manifest)], ["evaluate", "policies", str(manifest)],
+                 ["evaluate", "physics", str(manifest)], ["train-policy", str(manifest)], ["loop", str(manifest)]):
+        result = runner.invoke(app, args)
+        lines = [line for line in result.output.splitlines() if line.strip()]
+        assert result.exit_code == 2 and len(lines) == 1, (args, result.output)
+        assert str(manifest) in lines[0] and "embodiment.mjcf 'universal_robots_ur5e/ur5e.xml'" in lines[0]
+    assert not (data_root / "lineage.duckdb").exists()
+
+
+def test_audit_takes_an_id_prefix_and_refuses_an_unknown_format(prefect_harness, data_root):
+    assert runner.invoke(app, ["register", str(GOOD)]).exit_code == 0
+    digest = manifest_hash(load(GOOD))
+    full = runner.invoke(app, ["audit", "manifest_artifacts", "--manifest", digest, "--format", "json"])
+    short = runner.invoke(app, ["audit", "manifest_artifacts", "--manifest", digest[:12], "--format", "json"])
+    assert full.exit_code == short.exit_code == 0 and digest in full.output and short.output == full.output
+    bad = runner.invoke(app, ["audit", "manifest_artifacts", "--manifest", digest, "--format", "xml"])
+    assert bad.exit_code == 2 and "one of table, csv, json" in bad.output

@@ -88,6 +88,14 @@ def test_policies_on_a_panel_table_and_lineage(prefect_harness, data_root, tmp_p
     assert again["comparison_id"] == result["comparison_id"]
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         assert {k: v for k, v in wh.counts().items() if k != "runs"} == {k: v for k, v in counts.items() if k != "runs"}
+        _, ((checkpoint_id,),) = wh.query("SELECT parent_id FROM edges WHERE relation = 'policy'")
+
+    # The command line takes the policy by its checkpoint id too: the same evaluation, nothing new.
+    by_id = CliRunner().invoke(app, ["evaluate", "policies", str(manifest), "--grid", str(grid), "--policy", "scripted",
+                                     "--policy", "scripted:0.8", "--policy", f"bc:{checkpoint_id[:12]}"])
+    assert by_id.exit_code == 0, by_id.output
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        assert {k: v for k, v in wh.counts().items() if k != "runs"} == {k: v for k, v in counts.items() if k != "runs"}
 
 
 def test_unlike_contracts_are_refused_before_any_work(prefect_harness, data_root, tmp_path):

@@ -83,4 +83,8 @@ def test_cli_refuses_before_any_work(data_root, tmp_path):
     assert result.exit_code == 2 and "drives arms" in result.output
     result = CliRunner().invoke(app, ["loop", str(_manifest(tmp_path)), "--policy", "bc:/nowhere"])
     assert result.exit_code == 2 and "not a behaviour-cloning checkpoint" in result.output
+    result = CliRunner().invoke(app, ["loop", str(_manifest(tmp_path)), "--policy", "scripted"])
+    assert result.exit_code == 2 and "the loop post-trains behaviour-cloning policies" in result.output
+    result = CliRunner().invoke(app, ["loop", str(_manifest(tmp_path)), "--policy", "bc:0123456789abcdef"])
+    assert result.exit_code == 2 and "no lineage warehouse yet" in result.output
     assert not (data_root / "lineage.duckdb").exists()

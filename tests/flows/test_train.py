@@ -93,6 +93,8 @@ def test_train_pretrains_posttrains_records_lineage_and_skips_on_rerun(prefect_h
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         _, runs = wh.query("SELECT status FROM runs WHERE flow = 'train'")
     assert runs == [("completed",), ("completed",)]
+    camera = runner.invoke(app, ["train", str(manifest), "--camera", "nope"])  # refused before pre-training
+    assert camera.exit_code == 2 and "--camera 'nope': the episodes of" in camera.output
 
 
 def test_cli_refuses_bad_train_arguments(data_root, tmp_path):
@@ -102,6 +104,15 @@ def test_cli_refuses_bad_train_arguments(data_root, tmp_path):
     assert none.exit_code == 2 and "no simulated episodes" in none.output
     missing = runner.invoke(app, ["train", str(tmp_path / "nothing.yaml")])
     assert missing.exit_code == 2
+    garbage = tmp_path / "tok"
+    garbage.mkdir()
+    (garbage / "config.json").write_text("{}")
+    for name, problem in ((str(garbage), "config.json: not a tokenizer checkpoint config"),
+                          ("0123456789abcdef", "no lineage warehouse yet")):
+        for args in (["train", str(MANIFESTS / "conveyor_push.yaml"), "--tokenizer", name],
+                     ["tokenize", str(tmp_path), "--init", name]):
+            result = runner.invoke(app, args)
+            assert result.exit_code == 2 and problem in result.output, (args, result.output)
 
 
 def test_token_patch_keeps_a_latent_frame_at_64_tokens_or_fewer():

@@ -53,8 +53,10 @@ def test_grid_seed_defaults_to_the_parents():
 def test_grid_yaml_round_trip_and_errors():
     grid = parse_grid("name: g\ncells:\n  - name: dim\n    stressors: [{kind: dim_light, lux: 30}]\nepisodes: 4\n")
     assert grid.cells[0].stressors == (DimLight(lux=30),) and grid.episodes == 4
-    with pytest.raises(GridError, match=r"<grid>: cells.0.name"):
+    with pytest.raises(GridError, match=r"<grid>: cells.0.name: [^;]*$"):  # only what is wrong, once
         parse_grid("name: g\ncells:\n  - name: Not Valid\n")
+    with pytest.raises(GridError, match=r"<grid>: cells: Tuple should have at least 1 item"):
+        parse_grid("name: g\ncells: []\n")
     with pytest.raises(GridError, match="alias"):
         parse_grid("name: g\ncells:\n  - &a {name: x}\n  - *a\n")
     with pytest.raises(GridError, match="blocked term"):  # the text pre-guard reads grids too
