@@ -72,8 +72,8 @@ def _world_model_or_exit(name: str | None) -> str:
     return str(_checkpoint_or_exit(lambda warehouse, root: world_model_folder(warehouse, root, name)))
 
 
-def _tokenizer_or_exit(name: str, variant: str | None = "discrete") -> None:
-    """Check that a tokenizer checkpoint folder or id loads (the flow resolves it again)."""
+def _tokenizer_or_exit(name: str, variant: str | None = "discrete") -> str:
+    """The folder of a tokenizer checkpoint named by folder or id, checked to load."""
     from flows.lookup import checkpoint_folder, tokenizer_condition
     from tasks.checkpoint_files import CheckpointError
     from tasks.tokenize import tokens
@@ -87,6 +87,7 @@ def _tokenizer_or_exit(name: str, variant: str | None = "discrete") -> None:
         _fail(str(exc))
     if variant and config.variant != variant:
         _fail(f"{name}: a {config.variant} tokenizer; a {variant} one is needed here")
+    return str(folder)
 
 
 def _policies_or_exit(names: list[str], behaviour_cloning: bool = False) -> list[str]:
@@ -576,8 +577,8 @@ def evaluate_physics_cmd(
     manifest: Path,
     world_model: Optional[str] = typer.Option(None, help="post-trained world-model checkpoint folder or id "
                                                          "(default: the newest post-trained one in lineage)"),
-    tokenizer: Optional[Path] = typer.Option(None, help="its tokenizer's checkpoint folder (default: the one it was "
-                                                        "trained with)"),
+    tokenizer: Optional[str] = typer.Option(None, help="its tokenizer's checkpoint folder or id (default: the one "
+                                                       "it was trained with)"),
     episodes: int = typer.Option(10, min=1, max=1000, help="held-out episodes"),
     first_seed: int = typer.Option(10_000, min=0, help="seeds first_seed.. (never those the model trained on)"),
     camera: Optional[str] = typer.Option(None, help="world-mounted camera (default: the first)"),
@@ -588,12 +589,11 @@ def evaluate_physics_cmd(
     shuffled actions (Prefect flow `evaluate-physics`)."""
     _simulable_or_exit(manifest)
     folder = _world_model_or_exit(world_model)
-    if tokenizer:
-        _tokenizer_or_exit(str(tokenizer))
+    tokenizer_folder = _tokenizer_or_exit(tokenizer) if tokenizer else None
     from flows.physics import evaluate_physics
 
     try:
-        result = evaluate_physics(str(manifest), folder, str(tokenizer) if tokenizer else None, episodes,
+        result = evaluate_physics(str(manifest), folder, tokenizer_folder, episodes,
                                   first_seed, camera, horizon)
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
