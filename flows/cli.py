@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import logging
 import sys
 from pathlib import Path
 from typing import Optional
@@ -483,6 +484,12 @@ def panels(
     _grid_or_exit(parent, grid, episodes)
     folder = _world_model_or_exit(world_model) if world_model else None
     from flows.panels import panels as panels_flow
+    from flows.panels import primary_camera
+
+    try:
+        primary_camera(parent, camera)
+    except ValueError as exc:
+        _fail(f"--camera: {exc}")
 
     try:
         result = panels_flow(str(manifest), str(grid) if grid else None, episodes, folder, camera, guard)
@@ -525,10 +532,18 @@ def evaluate_policies_cmd(
         _simulable_or_exit(other)
     _grid_or_exit(parent, grid, episodes)
     from tasks.panels.contract import PanelContractError
+    from tasks.policy.specs import load_policy
 
     specs = _policies_or_exit(policy or [])
     folder = _world_model_or_exit(world_model) if world_model else None
+    from flows.evaluate import DEFAULT_POLICIES, plan
     from flows.evaluate import evaluate as evaluate_flow
+
+    try:  # the flow plans again; refusing here spares starting Prefect for nothing
+        plan([str(manifest), *map(str, compare or [])], str(grid) if grid else None, episodes,
+             [load_policy(p) for p in specs or DEFAULT_POLICIES])
+    except PanelContractError as exc:
+        _fail(str(exc))
 
     try:
         result = evaluate_flow(str(manifest), str(grid) if grid else None, episodes, specs or None,
@@ -635,7 +650,21 @@ def loop_cmd(
 evaluate_app.command("policies")(evaluate_policies_cmd)
 
 
+class _InputErrorsInOneLine(logging.Filter):
+    """Prefect logs a failed flow or task run's exception with its traceback; from the CLI an
+    input error (FileNotFoundError, ValueError: a missing file, a refused manifest or contract)
+    is then stated in one line, as the CLI states it again on exit. Other errors keep their
+    traceback, and so does every run a worker executes."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.exc_info and isinstance(record.exc_info[1], (FileNotFoundError, ValueError)):
+            record.exc_info = record.exc_text = None
+        return True
+
+
 def main() -> None:
+    for name in ("prefect.flow_runs", "prefect.task_runs"):
+        logging.getLogger(name).addFilter(_InputErrorsInOneLine())
     app()
 
 

@@ -189,7 +189,11 @@ class Warehouse:
             return {t: self.con.execute(f"SELECT count(*) FROM {t}").fetchall()[0][0] for t in tables}
 
     def close(self) -> None:
-        self.con.close()
+        """Close the connection and drop it: a failed flow run's traceback keeps this object
+        alive until exit, and DuckDB's bindings report a connection still referenced then."""
+        con, self.con = self.con, None
+        if con is not None:
+            con.close()
 
     def __enter__(self) -> "Warehouse":
         return self

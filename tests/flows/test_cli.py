@@ -1,3 +1,4 @@
+import os
 import subprocess
 import sys
 
@@ -92,3 +93,31 @@ def test_audit_takes_an_id_prefix_and_refuses_an_unknown_format(prefect_harness,
     assert full.exit_code == short.exit_code == 0 and digest in full.output and short.output == full.output
     bad = runner.invoke(app, ["audit", "manifest_artifacts", "--manifest", digest, "--format", "xml"])
     assert bad.exit_code == 2 and "one of table, csv, json" in bad.output
+
+
+def test_prefect_logs_an_input_error_in_one_line_from_the_cli():
+    import logging
+
+    from flows.cli import _InputErrorsInOneLine
+
+    def record(error):
+        try:
+            raise error
+        except Exception:
+            return logging.LogRecord("prefect.flow_runs", logging.ERROR, __file__, 1, "failed", None, sys.exc_info())
+
+    refused, crashed = record(FileNotFoundError("x.yaml: no such file")), record(RuntimeError("a bug"))
+    assert _InputErrorsInOneLine().filter(refused) and _InputErrorsInOneLine().filter(crashed)
+    assert refused.exc_info is None and "Traceback" not in logging.Formatter().format(refused)
+    assert crashed.exc_info is not None and "Traceback" in logging.Formatter().format(crashed)
+
+
+def test_a_failed_flow_from_the_cli_ends_without_traceback_or_binding_noise(tmp_path):
+    fake = tmp_path / "fake.parquet"
+    fake.write_text("hello\n")
+    env = {**os.environ, "WORLDLINE_DATA_ROOT": str(tmp_path / "root")}
+    result = subprocess.run([sys.executable, "-m", "flows.cli", "tokenize", str(fake), "--steps", "1"],
+                            capture_output=True, text=True, cwd=REPO, env=env, timeout=300)
+    output = result.stdout + result.stderr
+    assert result.returncode == 2 and f"{fake}: not a readable Parquet file" in output, output
+    assert "Traceback" not in output and "nanobind" not in output, output

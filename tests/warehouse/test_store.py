@@ -106,3 +106,10 @@ def test_completed_stage_runs_are_the_skip_marker(tmp_path):
         ]))
         assert wh.completed_stage_runs("decode", ["k1", "k2", "k3"]) == {"k1"}
         assert wh.completed_stage_runs("encode", ["k1"]) == set()
+
+
+def test_close_drops_the_connection_and_may_repeat(tmp_path):
+    wh = Warehouse(tmp_path / "w.duckdb")
+    wh.close()
+    wh.close()  # as __exit__ does after an explicit close
+    assert wh.con is None  # nothing of DuckDB's is left for a failed run's traceback to keep alive
