@@ -5,14 +5,26 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, ValidationError
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 from schemas import paths
 
 
+class SettingsError(ValueError):
+    """One line: each WORLDLINE_ variable that is wrong, its value and the problem."""
+
+
 class Settings(BaseSettings):
     model_config = SettingsConfigDict(env_prefix="WORLDLINE_", frozen=True, extra="ignore")
+
+    def __init__(self, **values):
+        try:
+            super().__init__(**values)
+        except ValidationError as exc:
+            raise SettingsError("; ".join(
+                f"WORLDLINE_{'_'.join(map(str, e['loc'])).upper()}={e.get('input')!r}: {e['msg']}"
+                for e in exc.errors())) from None
 
     data_root: Path = Field(Path(".worldline"), description="where artifacts, the warehouse and Prefect's home live")
     warehouse: Path | None = Field(None, description="DuckDB lineage file; default <data_root>/lineage.duckdb")

@@ -121,3 +121,15 @@ def test_a_failed_flow_from_the_cli_ends_without_traceback_or_binding_noise(tmp_
     output = result.stdout + result.stderr
     assert result.returncode == 2 and f"{fake}: not a readable Parquet file" in output, output
     assert "Traceback" not in output and "nanobind" not in output, output
+
+
+def test_a_wrong_setting_is_named_in_one_line(tmp_path):
+    a_file = tmp_path / "a_file"
+    a_file.write_text("")
+    for env, problem in (({"WORLDLINE_WORKERS": "abc"}, "WORLDLINE_WORKERS='abc': Input should be a valid integer"),
+                         ({"WORLDLINE_DATA_ROOT": str(a_file)}, f"Prefect's home {a_file}/prefect")):
+        inherited = {k: v for k, v in os.environ.items() if k != "PREFECT_HOME"}  # set by this session
+        result = subprocess.run([sys.executable, "-m", "flows.cli", "summary"], capture_output=True, text=True,
+                                cwd=REPO, env={**inherited, **env}, timeout=120)
+        assert result.returncode == 2 and result.stderr.strip().splitlines() == [result.stderr.strip()], result.stderr
+        assert problem in result.stderr
