@@ -91,21 +91,22 @@ def _tokenizer_or_exit(name: str, variant: str | None = "discrete") -> str:
     return str(folder)
 
 
-def _policies_or_exit(names: list[str], behaviour_cloning: bool = False) -> list[str]:
-    """Policy names with ``bc:ID`` resolved to ``bc:FOLDER``, each loaded once to check it."""
+def _policies_or_exit(names: list[str], behaviour_cloning: bool = False) -> tuple[list[str], list]:
+    """(names with ``bc:ID`` resolved to ``bc:FOLDER``, the policies they load)."""
     from flows.lookup import policy_spec
     from tasks.policy.specs import PolicySpecError, load_policy
 
     specs = [_checkpoint_or_exit(lambda warehouse, root, name=name: policy_spec(warehouse, root, name))
              for name in names]
+    loaded = []
     for spec in specs:
         if behaviour_cloning and not spec.startswith("bc:"):
             _fail(f"policy {spec!r}: the loop post-trains behaviour-cloning policies (bc:PATH or bc:ID)")
         try:
-            load_policy(spec)
+            loaded.append(load_policy(spec))
         except PolicySpecError as exc:
             _fail(str(exc))
-    return specs
+    return specs, loaded
 
 
 def _config_or_exit(path: Path | None):
@@ -532,16 +533,15 @@ def evaluate_policies_cmd(
         _simulable_or_exit(other)
     _grid_or_exit(parent, grid, episodes)
     from tasks.panels.contract import PanelContractError
-    from tasks.policy.specs import load_policy
 
-    specs = _policies_or_exit(policy or [])
-    folder = _world_model_or_exit(world_model) if world_model else None
     from flows.evaluate import DEFAULT_POLICIES, plan
     from flows.evaluate import evaluate as evaluate_flow
 
+    specs, loaded = _policies_or_exit(policy or [])
+    folder = _world_model_or_exit(world_model) if world_model else None
     try:  # the flow plans again; refusing here spares starting Prefect for nothing
         plan([str(manifest), *map(str, compare or [])], str(grid) if grid else None, episodes,
-             [load_policy(p) for p in specs or DEFAULT_POLICIES])
+             loaded or _policies_or_exit(list(DEFAULT_POLICIES))[1])
     except PanelContractError as exc:
         _fail(str(exc))
 
@@ -635,7 +635,7 @@ def loop_cmd(
               f"this manifest's embodiment is {parent.embodiment.kind!r}")
     _grid_or_exit(parent, grid, episodes)
     if policy is not None:
-        policy = _policies_or_exit([policy], behaviour_cloning=True)[0]
+        policy = _policies_or_exit([policy], behaviour_cloning=True)[0][0]
     from flows.loop import loop as loop_flow
 
     result = loop_flow(str(manifest), policy, str(grid) if grid else None, episodes, worst, new_episodes, post_steps)
