@@ -315,6 +315,12 @@ def curate(
     if manifest is not None:
         _load_or_exit(manifest)
     _config_or_exit(config)
+    from tasks.curate.config import VIDEO_SUFFIXES
+    from tasks.curate.inputs import discover
+
+    if not discover(inputs):
+        _fail(f"{', '.join(map(str, inputs))}: no videos there ({' '.join(VIDEO_SUFFIXES)} in folders, or files given "
+              "by name)")
     from flows.curate import curate as curate_flow
 
     result = curate_flow([str(p) for p in inputs], str(manifest) if manifest else None, str(config) if config else None)

@@ -133,3 +133,13 @@ def test_a_wrong_setting_is_named_in_one_line(tmp_path):
                                 cwd=REPO, env={**inherited, **env}, timeout=120)
         assert result.returncode == 2 and result.stderr.strip().splitlines() == [result.stderr.strip()], result.stderr
         assert problem in result.stderr
+
+
+def test_curate_refuses_folders_without_videos(tmp_path, data_root):
+    (tmp_path / "empty").mkdir()
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "readme.txt").write_text("no footage here")
+    result = runner.invoke(app, ["curate", str(tmp_path / "empty"), str(tmp_path / "notes")])
+    lines = [line for line in result.output.splitlines() if line.strip()]
+    assert result.exit_code == 2 and len(lines) == 1 and "no videos there" in lines[0], result.output
+    assert not (data_root / "lineage.duckdb").exists()
