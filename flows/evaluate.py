@@ -16,6 +16,7 @@ from prefect.cache_policies import NO_CACHE
 
 from flows.panels import panels as panels_flow
 from flows.panels import primary_camera, resolve_grid, world_text
+from flows.params import PanelEpisodes
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, progress, publish, write_json
 from flows.runners import task_runner
@@ -138,7 +139,7 @@ def _fmt(value: float | None) -> str:
 
 
 @flow(name="evaluate", log_prints=True, task_runner=task_runner())
-def evaluate(manifest: str, grid: str | None = None, episodes: int | None = None,
+def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | None = None,
              policies: list[str] | None = None, compare: list[str] | None = None,
              world_model: str | None = None, detector: bool = True, guard: bool = True) -> dict:
     """Evaluate ``policies`` (default: the scripted controller at the manifest's noise and at

@@ -10,13 +10,16 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Annotated
 
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
+from pydantic import Field
 
 from flows.curate import curate
 from flows.evaluate import evaluate
 from flows.panels import resolve_grid
+from flows.params import Episodes, PanelEpisodes, Steps
 from flows.policy import train_policy
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, publish
@@ -159,8 +162,8 @@ def summarise(table: list[dict], derived: list[ScenarioManifest], counts: list[i
 
 
 @flow(name="loop", log_prints=True)
-def loop(manifest: str, policy: str | None = None, grid: str | None = None, episodes: int | None = None,
-         worst: int = 1, new_episodes: int = 12, post_steps: int = 2000) -> dict:
+def loop(manifest: str, policy: str | None = None, grid: str | None = None, episodes: PanelEpisodes | None = None,
+         worst: Annotated[int, Field(ge=1, le=8)] = 1, new_episodes: Episodes = 12, post_steps: Steps = 2000) -> dict:
     """Close the loop once for ``policy`` (``bc:PATH``; default: a weak policy trained here on
     a few demonstrations) on the panel of ``manifest`` over ``grid``: the ``worst`` cells get
     ``new_episodes`` in all, in proportion to their failure rate."""

@@ -12,6 +12,7 @@ import pyarrow.parquet as pq
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
+from flows.params import PanelEpisodes
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, progress, publish, write_json
 from flows.runners import task_runner
@@ -133,7 +134,7 @@ def rollout_world_model(checkpoint: str, request: WorldModelRequest, guard: Guar
 
 
 @flow(name="panels", log_prints=True, task_runner=task_runner())
-def panels(manifest: str, grid: str | None = None, episodes: int | None = None, world_model: str | None = None,
+def panels(manifest: str, grid: str | None = None, episodes: PanelEpisodes | None = None, world_model: str | None = None,
            camera: str | None = None, guard: bool = True) -> dict:
     """A matched panel of ``manifest`` over ``grid`` (a YAML StressorGrid; default: one
     stressor at a time), ``episodes`` seeds per cell (default: the grid's)."""

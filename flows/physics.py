@@ -14,12 +14,15 @@ import json
 import time
 from dataclasses import replace
 from pathlib import Path
+from typing import Annotated
 
 import numpy as np
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
+from pydantic import Field
 
 from flows.lookup import world_model_folder
+from flows.params import PanelEpisodes, Seed
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, publish
 from schemas import paths
@@ -240,8 +243,9 @@ def evaluation_lineage(root: Path, evaluation_id: str, files: dict[str, Path], s
 
 
 @flow(name="evaluate-physics", log_prints=True)
-def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: str | None = None, episodes: int = 10,
-                     first_seed: int = HELDOUT_FIRST_SEED, camera: str | None = None, horizon: int = 4,
+def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: str | None = None, episodes: PanelEpisodes = 10,
+                     first_seed: Seed = HELDOUT_FIRST_SEED, camera: str | None = None,
+                     horizon: Annotated[int, Field(ge=1, le=64)] = 4,
                      context: int | None = None, stride: int = 2, move_threshold_cm: float = 2.0,
                      shuffle_seed: int = 0) -> dict:
     """Evaluate ``world_model`` (a post-trained checkpoint folder or id; default the newest) on

@@ -9,10 +9,13 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Annotated
 
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
+from pydantic import Field
 
+from flows.params import Episodes, Seed, Steps
 from flows.recording import recorded_run
 from flows.report import markdown_table, publish
 from schemas import paths
@@ -39,8 +42,8 @@ def train(demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path, scenar
 
 
 @flow(name="train-policy", log_prints=True)
-def train_policy(manifest: str, episodes: int = 30, steps: int = 3000, preset_name: str = "tiny", seed: int = 0,
-                 holdout: int = 10) -> dict:
+def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, preset_name: str = "tiny", seed: Seed = 0,
+                 holdout: Annotated[int, Field(ge=0, le=10_000)] = 10) -> dict:
     """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations."""
     settings = Settings()
     root = settings.data_root.resolve()

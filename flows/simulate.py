@@ -7,6 +7,7 @@ from pathlib import Path
 
 from prefect import flow, task
 
+from flows.params import Episodes
 from flows.recording import recorded_run
 from flows.report import markdown_table, progress, publish
 from flows.runners import task_runner
@@ -27,7 +28,7 @@ def simulate_episode(manifest, manifest_hash: str, index: int, root: Path):
 
 
 @flow(name="simulate", log_prints=True, task_runner=task_runner())
-def simulate(manifest: str, episodes: int = 2) -> dict:
+def simulate(manifest: str, episodes: Episodes = 2) -> dict:
     """Episodes 0..N-1 of a manifest use seeds seed..seed+N-1; finished episodes are skipped."""
     settings = Settings()
     scenario = load_manifest(Path(manifest))

@@ -6,10 +6,13 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Annotated
 
 import torch
 from prefect import flow, task
+from pydantic import Field
 
+from flows.params import Batch, Seed, Side, Steps, Weight
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table
 from flows.report import publish as publish_report
@@ -117,9 +120,11 @@ def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: flo
 
 
 @flow(name="tokenize", log_prints=True)
-def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: int = 200, size: int = 64,
-             batch_size: int = 4, seed: int = 0, max_encode_frames: int = 129, crop: int | None = None,
-             motion_weight: float = 0.0, focus_crops: int = 1, init: str | None = None) -> dict:
+def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200, size: Side = 64,
+             batch_size: Batch = 4, seed: Seed = 0, max_encode_frames: Annotated[int, Field(ge=1)] = 129,
+             crop: Side | None = None,
+             motion_weight: Weight = 0.0, focus_crops: Annotated[int, Field(ge=1, le=64)] = 1,
+             init: str | None = None) -> dict:
     """Train tokenizer ``preset_name`` for ``steps`` on the clips of ``shards`` (on random
     ``crop`` x ``crop`` windows when given; weighting moving pixels and favouring crops that
     move when asked; continuing from checkpoint ``init`` when given), then tokenize every shard."""

@@ -9,11 +9,14 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import Annotated
 
 import torch
 from prefect import flow, task
+from pydantic import Field
 
 from flows.lookup import checkpoint_by_id, is_hex_id, tokenizer_condition
+from flows.params import Batch, Seed, Share, Steps, Weight
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table
 from flows.report import publish as publish_report
@@ -218,9 +221,10 @@ def token_patch(grid_h: int, grid_w: int, max_tokens: int = 64) -> int:
 
 @flow(name="train", log_prints=True)
 def train(manifest: str, tokenizer: str | None = None, token_shards: str | None = None, preset_name: str = "tiny-wm",
-          pretrain_steps: int = 200, posttrain_steps: int = 100, batch_size: int = 8, window: int | None = None,
-          camera: str | None = None, seed: int = 0, patch: int | None = None, change_weight: float = 0.0,
-          self_condition: float = 0.0) -> dict:
+          pretrain_steps: Steps = 200, posttrain_steps: Steps = 100, batch_size: Batch = 8,
+          window: Annotated[int, Field(ge=2, le=64)] | None = None,
+          camera: str | None = None, seed: Seed = 0, patch: Annotated[int, Field(ge=1, le=16)] | None = None,
+          change_weight: Weight = 0.0, self_condition: Share = 0.0) -> dict:
     """Pre-train world model ``preset_name`` on ``tokenizer``'s token shards (or ``token_shards``),
     then post-train it with actions on the simulated episodes of ``manifest`` (a YAML, an
     episode folder or a manifest hash), every camera or only ``camera``. ``patch``: codes per
