@@ -93,10 +93,21 @@ def prefect_command(*args: str) -> list[str]:
 
 
 def spawn(name: str, args: list[str], env: dict[str, str], log: Path) -> Child:
+    """Start ``args`` in a session of its own, logging to ``log``. It stops on SIGINT even when
+    this process ignores SIGINT (a background job of a script, whose shell starts it so): an
+    ignored signal stays ignored across exec, a handled one is reset to its default."""
     log.parent.mkdir(parents=True, exist_ok=True)
-    with open(log, "ab") as out:
-        proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                                env=env, cwd=PROJECT_ROOT, start_new_session=True)
+    main = threading.current_thread() is threading.main_thread()
+    ignored = main and signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+    if ignored:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with open(log, "ab") as out:
+            proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
+                                    env=env, cwd=PROJECT_ROOT, start_new_session=True)
+    finally:
+        if ignored:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
     return Child(name, proc, log)
 
 

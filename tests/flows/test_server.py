@@ -230,6 +230,25 @@ def test_stop_ends_server_and_worker_by_pid(stack):
     assert Path(stack.settings.prefect_home_path, "server.log").stat().st_size > 0
 
 
+def test_children_stop_on_sigint_even_when_the_parent_ignores_it(tmp_path):
+    # A background job of a script starts with SIGINT ignored, and exec keeps it ignored: the
+    # worker would then outlive stop()'s SIGINT by STOP_TIMEOUT_S and the server's SIGTERM.
+    script = (
+        "import os, signal, sys\n"
+        "from pathlib import Path\n"
+        "from flows.server import spawn\n"
+        "signal.signal(signal.SIGINT, signal.SIG_IGN)\n"
+        "child = spawn('probe', [sys.executable, '-c', 'import signal; "
+        "print(signal.getsignal(signal.SIGINT) is signal.default_int_handler)'], dict(os.environ), Path(sys.argv[1]))\n"
+        "child.proc.wait(60)\n"
+        "print(signal.getsignal(signal.SIGINT) == signal.SIG_IGN)\n")
+    log = tmp_path / "probe.log"
+    result = subprocess.run([sys.executable, "-c", script, str(log)], cwd=REPO, capture_output=True, text=True,
+                            timeout=120)
+    assert result.returncode == 0 and result.stdout.strip() == "True", result.stderr  # the parent's own is kept
+    assert log.read_text().strip() == "True"  # the child handles SIGINT (KeyboardInterrupt)
+
+
 @pytest.mark.slow
 def test_serve_runs_until_ctrl_c_then_leaves_nothing_behind(tmp_path):
     env = {**os.environ, "WORLDLINE_DATA_ROOT": str(tmp_path)}
