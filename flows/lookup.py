@@ -4,14 +4,14 @@ more hex digits of a checkpoint id in lineage (as reports and audits print them)
 Each lookup takes an open warehouse (None before any flow has written one): a flow passes its
 run's, the CLI a read-only one opened before the flow starts, so that a bad name is one line
 rather than a failed flow run. Bad names raise FileNotFoundError, or CheckpointError (a
-ValueError) for a folder whose config is unreadable.
+ValueError) for a folder whose config is unreadable or incomplete.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from tasks.checkpoint_files import CONFIG_FILE
+from tasks.checkpoint_files import CONFIG_FILE, CheckpointError
 from warehouse.store import Warehouse
 
 POSTTRAINED_WORLD_MODEL = "attrs->>'model' = 'world_model' AND attrs->>'phase' = 'posttrain'"
@@ -71,8 +71,8 @@ def world_model_folder(warehouse: Warehouse | None, root: Path, name: str | None
         folder = (Path(root).resolve() / rows[0][0]).parent
     config = checkpoints.read_config(folder)
     if missing := [key for key in ("tokenizer", "size") if key not in config]:
-        raise FileNotFoundError(f"{folder / CONFIG_FILE}: not a post-trained world model's config "
-                                f"(no {', '.join(missing)})")
+        raise CheckpointError(f"{folder / CONFIG_FILE}: not a post-trained world model's config "
+                              f"(no {', '.join(missing)})")
     return folder
 
 

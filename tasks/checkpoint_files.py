@@ -8,10 +8,9 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-
 from typing import TypeVar
 
-from pydantic import BaseModel, ValidationError
+from pydantic import BaseModel
 from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
@@ -40,7 +39,6 @@ def write_checkpoint(model: nn.Module, folder: Path, key: str, extra: dict | Non
     return weights, config
 
 
-
 def read_config(folder: Path, key: str, what: str = "checkpoint") -> dict:
     """``config.json`` of a checkpoint folder, checked to be a mapping holding ``key``."""
     path = Path(folder) / CONFIG_FILE
@@ -57,11 +55,9 @@ def read_config(folder: Path, key: str, what: str = "checkpoint") -> dict:
 
 def model_config(config_type: type[Config], body: dict, key: str, folder: Path) -> Config:
     """The architecture ``body[key]`` validated as ``config_type``; errors name the config file."""
-    try:
-        return config_type.model_validate(body[key])
-    except ValidationError as exc:
-        problems = "; ".join(f"{key}.{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors())
-        raise CheckpointError(f"{Path(folder) / CONFIG_FILE}: {problems}") from None
+    from tasks.manifests import validated
+
+    return validated(config_type, body[key], f"{Path(folder) / CONFIG_FILE}: {key}", CheckpointError)
 
 
 def load_weights(model: nn.Module, folder: Path) -> nn.Module:

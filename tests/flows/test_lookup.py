@@ -51,7 +51,7 @@ def test_world_model_by_folder_id_or_newest(lineage, tmp_path):
     warehouse, root, folders = lineage
     assert world_model_folder(warehouse, root, WM_A[:13]) == folders[WM_A]
     assert world_model_folder(None, root, str(folders[WM_A])) == folders[WM_A]  # a folder needs no lineage
-    with pytest.raises(FileNotFoundError, match=f"{WM_B}/config.json: not a post-trained world model's config "
+    with pytest.raises(CheckpointError, match=f"{WM_B}/config.json: not a post-trained world model's config "
                                                 r"\(no tokenizer, size\)"):
         world_model_folder(warehouse, root, WM_B)
     with pytest.raises(FileNotFoundError, match="not-a-folder: no such checkpoint folder, and not a checkpoint id"):
@@ -66,7 +66,7 @@ def test_world_model_by_folder_id_or_newest(lineage, tmp_path):
     with pytest.raises(FileNotFoundError, match="no post-trained world model in lineage"):
         world_model_folder(None, root, None)
     # The newest post-trained one; WM_B (recorded last) lacks its tokenizer, and says so.
-    with pytest.raises(FileNotFoundError, match=f"{WM_B}/config.json"):
+    with pytest.raises(CheckpointError, match=f"{WM_B}/config.json"):
         world_model_folder(warehouse, root, None)
 
 

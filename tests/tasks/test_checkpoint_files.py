@@ -45,5 +45,5 @@ def test_weights_of_another_architecture_or_a_bad_config_field(folder):
     with pytest.raises(CheckpointError, match="model.safetensors: the weights do not fit the architecture"):
         load_checkpoint(folder)
     (folder / CONFIG_FILE).write_text(json.dumps({**body, "world_model": {**body["world_model"], "layers": -1}}))
-    with pytest.raises(CheckpointError, match="config.json: world_model.layers: Input should be greater"):
+    with pytest.raises(CheckpointError, match="config.json: world_model: layers: Input should be greater"):
         load_checkpoint(folder)
