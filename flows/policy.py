@@ -23,6 +23,7 @@ from schemas.hashing import content_hash, sha256_file, stable_id
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord, StageRunRecord
 from schemas.settings import Settings
 from tasks import manifests
+from tasks.checkpoint_files import CONFIG_FILE
 from tasks.policy import bc
 from tasks.policy.features import FEATURES_VERSION
 
@@ -74,7 +75,7 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
             weights = folder / bc.WEIGHTS_FILE
             attrs = {"model": "bc-policy", "preset": preset_name, "steps": steps, "train_seeds": train_seeds,
                      "held_out_seeds": test_seeds, "held_out_success_rate": rate,
-                     "config": (folder / bc.CONFIG_FILE).relative_to(root).as_posix()}
+                     "config": (folder / CONFIG_FILE).relative_to(root).as_posix()}
             batch = LineageBatch(
                 stage_runs=[stage],
                 artifacts=[ArtifactRecord(artifact_id=checkpoint_id, kind="checkpoint",
