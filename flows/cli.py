@@ -74,16 +74,18 @@ def _world_model_or_exit(name: str | None) -> str:
 
 
 def _tokenizer_or_exit(name: str, variant: str | None = "discrete") -> str:
-    """The folder of a tokenizer checkpoint named by folder or id, checked to load."""
+    """The folder of a tokenizer checkpoint named by folder or id, its config checked (the flow
+    loads the weights)."""
     from flows.lookup import checkpoint_folder, tokenizer_condition
-    from tasks.checkpoint_files import CheckpointError
-    from tasks.tokenize import tokens
+    from models.tokenizer import TokenizerConfig
+    from tasks.checkpoint_files import CheckpointError, model_config, read_config
 
     what = f"{variant} tokenizer" if variant else "tokenizer"
     folder = _checkpoint_or_exit(lambda warehouse, root: checkpoint_folder(
         warehouse, root, name, tokenizer_condition(variant), what))
     try:
-        config = tokens.load_checkpoint(folder).config
+        config = model_config(TokenizerConfig, read_config(folder, "tokenizer", "tokenizer checkpoint"), "tokenizer",
+                              folder)
     except CheckpointError as exc:
         _fail(str(exc))
     if variant and config.variant != variant:
