@@ -134,8 +134,8 @@ def rollout_world_model(checkpoint: str, request: WorldModelRequest, guard: Guar
 
 
 @flow(name="panels", log_prints=True, task_runner=task_runner())
-def panels(manifest: str, grid: str | None = None, episodes: PanelEpisodes | None = None, world_model: str | None = None,
-           camera: str | None = None, guard: bool = True) -> dict:
+def panels(manifest: str, grid: str | None = None, episodes: PanelEpisodes | None = None,
+           world_model: str | None = None, camera: str | None = None, guard: bool = True) -> dict:
     """A matched panel of ``manifest`` over ``grid`` (a YAML StressorGrid; default: one
     stressor at a time), ``episodes`` seeds per cell (default: the grid's)."""
     settings = Settings()

@@ -243,7 +243,8 @@ def evaluation_lineage(root: Path, evaluation_id: str, files: dict[str, Path], s
 
 
 @flow(name="evaluate-physics", log_prints=True)
-def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: str | None = None, episodes: PanelEpisodes = 10,
+def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: str | None = None,
+                     episodes: PanelEpisodes = 10,
                      first_seed: Seed = HELDOUT_FIRST_SEED, camera: str | None = None,
                      horizon: Annotated[int, Field(ge=1, le=64)] = 4,
                      context: int | None = None, stride: int = 2, move_threshold_cm: float = 2.0,

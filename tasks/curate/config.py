@@ -85,5 +85,5 @@ def load_config(path: Path | str | None) -> CurateConfig:
     if path is None:
         return CurateConfig()
     where = str(path)
-    return validated(CurateConfig, safe_mapping(read_text(Path(path), ConfigError), where, "curate config", ConfigError),
-                     where, ConfigError)
+    data = safe_mapping(read_text(Path(path), ConfigError), where, "curate config", ConfigError)
+    return validated(CurateConfig, data, where, ConfigError)
