@@ -105,10 +105,12 @@ def deduplicate(run: RunContext, analyses: list[analyse.VideoAnalysis], config: 
     t0 = time.perf_counter()
     kept = [c for a in analyses for c in a.clips if c.kept]
     signatures = {cid: s for a in analyses for cid, s in a.signatures.items()}
-    result = dedup.group(signatures, {c.clip_id: dedup.quality_key(c, config.dedup) for c in kept}, config.dedup)
+    result = dedup.group(signatures, {c.clip_id: dedup.quality_key(c, config.dedup) for c in kept}, config.dedup,
+                         exact=analyse.exact_for(kept, config))
     judged = dedup.apply(kept, signatures, result)
     key = stable_id("dedup", *sorted(signatures), config.analysis_hash())
-    stage = _stage(run, "dedup", key, len(kept), len(result.kept), t0, groups=len(result.groups))
+    stage = _stage(run, "dedup", key, len(kept), len(result.kept), t0, groups=len(result.groups),
+                   redecoded=result.redecoded)
     removed = [c for c in judged if not c.kept]
     run.write(LineageBatch(stage_runs=[stage]).extend(lineage.clips(removed, stage.stage_run_id)))
     return [c for c in judged if c.kept]

@@ -10,6 +10,8 @@ from __future__ import annotations
 import json
 import os
 import time
+from collections import defaultdict
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import lru_cache
 from pathlib import Path
@@ -21,7 +23,7 @@ from schemas.records import ClipRecord, clip_id, raw_video_id
 from tasks.curate import dedup
 from tasks.curate.captions import CaptionConfig, CaptionContext, make_captioner
 from tasks.curate.config import CurateConfig
-from tasks.curate.decode import DecodeError, DecodeReport, probe
+from tasks.curate.decode import DecodeError, DecodeReport, frames_at, probe
 from tasks.curate.filters import run_filters
 from tasks.curate.scenes import scenes_of
 from tasks.guard.text import scan_text
@@ -80,7 +82,8 @@ def analyse_video(path: Path, sha256: str, config: CurateConfig = CurateConfig()
         clip = ClipRecord(**base, scores=scores, tags=verdict.tags, kept=verdict.keep,
                           reject_stage=verdict.stage, reject_reason=verdict.reason)
         if verdict.keep:
-            signature = dedup.signature(span.frames, config.dedup)
+            signature = dedup.signature(span.frames, config.dedup, positions=span.indices - span.start_frame,
+                                        length=span.end_frame - span.start_frame)
             result.signatures[clip.clip_id] = signature
             caption = captioner.caption(span.frames, clip, context)
             clip = clip.model_copy(update={"phash": signature.phash, "caption": caption})
@@ -93,11 +96,47 @@ def analyse_video(path: Path, sha256: str, config: CurateConfig = CurateConfig()
         result.clips.append(clip)
     if report.frames == 0:
         raise DecodeError(f"{path}: no decodable frames ({'; '.join(report.problems) or 'empty stream'})")
-    result.decode = {"frames": report.frames, "corrupt": report.corrupt, "missing": report.missing,
+    result.decode = {"frames": report.frames, "unreferenced": report.unreferenced,
+                     "corrupt": report.corrupt, "missing": report.missing,
                      "decode_errors": report.decode_errors, "truncated": report.truncated,
                      "problems": report.problems[:20]}
     result.seconds = time.perf_counter() - t0
     return result
+
+
+def exact_signatures(spans: Mapping[str, tuple[str | Path, int, int]],
+                     config: CurateConfig = CurateConfig()) -> dict[str, dedup.ClipSignature]:
+    """Signatures from exactly the frames they sample, for ``dedup.group(exact=...)``.
+
+    spans: clip id -> (source video, start frame, end frame). Each source is opened once and
+    only the sampled frames and what they are predicted from are decoded. A source that can no
+    longer be decoded gives no signatures (its clips keep the ones from the analysis pass).
+    """
+    by_source: dict[str, list[str]] = defaultdict(list)
+    for cid, (source, _, _) in spans.items():
+        by_source[str(source)].append(cid)
+    out = {}
+    for source, ids in by_source.items():
+        wanted = {cid: spans[cid][1] + dedup.sample_positions(spans[cid][2] - spans[cid][1], config.dedup)
+                  for cid in ids}
+        try:
+            frames = frames_at(source, np.unique(np.concatenate([w.ravel() for w in wanted.values()])),
+                               config.analysis)
+        except DecodeError:
+            continue
+        for cid in ids:
+            have = [int(i) for i in np.unique(wanted[cid]) if int(i) in frames]
+            if have:
+                start, end = spans[cid][1], spans[cid][2]
+                out[cid] = dedup.signature(np.stack([frames[i] for i in have]), config.dedup,
+                                           positions=np.asarray(have) - start, length=end - start)
+    return out
+
+
+def exact_for(clips: Iterable[ClipRecord], config: CurateConfig = CurateConfig()):
+    """``dedup.group``'s ``exact`` callback for these clips (their sources and spans)."""
+    spans = {c.clip_id: (c.source_uri, c.start_frame, c.end_frame) for c in clips}
+    return lambda ids: exact_signatures({cid: spans[cid] for cid in ids if cid in spans}, config)
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
@@ -116,6 +155,7 @@ def save(analysis: VideoAnalysis, json_path: Path) -> None:
     for cid, sig in analysis.signatures.items():
         arrays[f"{cid}.hashes"] = sig.hashes
         arrays[f"{cid}.thumbs"] = sig.thumbs
+        arrays[f"{cid}.exact"] = np.asarray(sig.exact)
     np.savez(buf, **arrays)
     _atomic_write(json_path.with_suffix(".npz"), buf.getvalue())
     body = {"source": analysis.source, "sha256": analysis.sha256, "bytes": analysis.bytes,
@@ -131,7 +171,8 @@ def load(json_path: Path) -> VideoAnalysis | None:
         with np.load(json_path.with_suffix(".npz")) as arrays:
             clips = [ClipRecord.model_validate(c) for c in body["clips"]]
             signatures = {c.clip_id: dedup.ClipSignature(hashes=arrays[f"{c.clip_id}.hashes"],
-                                                         thumbs=arrays[f"{c.clip_id}.thumbs"])
+                                                         thumbs=arrays[f"{c.clip_id}.thumbs"],
+                                                         exact=bool(arrays[f"{c.clip_id}.exact"]))
                           for c in clips if c.kept}
     except (OSError, ValueError, KeyError):
         return None

@@ -26,7 +26,7 @@ order the clips arrive in.
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 
 import cv2
@@ -80,6 +80,7 @@ class ClipSignature:
 
     hashes: np.ndarray
     thumbs: np.ndarray
+    exact: bool = True  # False: some sampled frame was not decoded, its nearest decoded frame stands in
 
     @property
     def phash(self) -> str:
@@ -99,6 +100,7 @@ class DedupResult(BaseModel):
     hash_pairs: int = 0  # pairs within hash_max
     checked: int = 0  # pairs given the pixel check (max_neighbours per clip)
     verified: int = 0  # pairs that passed the pixel check
+    redecoded: int = 0  # clips whose sampled frames were decoded again for the pixel check
 
 
 def _content_box(grey: np.ndarray, bar_level: int) -> tuple[int, int, int, int]:
@@ -135,18 +137,43 @@ def _phash64(grey: np.ndarray) -> np.uint64:
     return np.frombuffer(bits.tobytes(), dtype=">u8")[0].astype(np.uint64)
 
 
-def signature(frames: np.ndarray, config: DedupConfig = DedupConfig()) -> ClipSignature:
-    """Signature of one clip from its analysis frames, T x h x w x 3 uint8 RGB (T >= 1)."""
+def sample_positions(length: int, config: DedupConfig = DedupConfig()) -> np.ndarray:
+    """F x O frame positions in a clip of ``length`` frames that its signature samples: the
+    centres of F equal slices (not the ends: a clip's first and last frames may hold part of
+    a fade), each with its neighbours at -time_radius..time_radius, clamped to the clip."""
+    centre = np.minimum(((np.arange(config.frames) + 0.5) * length / config.frames).astype(int), length - 1)
+    offsets = np.arange(-config.time_radius, config.time_radius + 1)
+    return np.clip(centre[:, None] + offsets[None, :], 0, length - 1)
+
+
+def signature(frames: np.ndarray, config: DedupConfig = DedupConfig(), positions: np.ndarray | None = None,
+              length: int | None = None) -> ClipSignature:
+    """Signature of one clip from its analysis frames, T x h x w x 3 uint8 RGB (T >= 1).
+
+    ``positions`` (T sorted ints) place the frames in a clip of ``length`` frames when some
+    were not decoded; a sampled position without its frame takes the nearest decoded one, and
+    the signature is then not ``exact`` (``group`` can ask for the exact frames).
+    """
     if not isinstance(frames, np.ndarray) or frames.dtype != np.uint8 or frames.ndim != 4 or frames.shape[-1] != 3:
         got = f"{getattr(frames, 'shape', None)} {getattr(frames, 'dtype', type(frames).__name__)}"
         raise ValueError(f"dedup.signature: expected T x h x w x 3 uint8 RGB frames, got {got}")
     if frames.shape[0] == 0 or min(frames.shape[1:3]) < 8:
         raise ValueError(f"dedup.signature: need at least one frame of 8 x 8 pixels, got shape {frames.shape}")
     n = frames.shape[0]
-    # Centres of equal slices, not the ends: a clip's first and last frames may hold part of a fade.
-    index = np.minimum(((np.arange(config.frames) + 0.5) * n / config.frames).astype(int), n - 1)
-    offsets = np.arange(-config.time_radius, config.time_radius + 1)
-    near = np.clip(index[:, None] + offsets[None, :], 0, n - 1)  # F x O
+    if positions is None:
+        positions, length = np.arange(n), n
+    positions = np.asarray(positions, np.int64)
+    if positions.shape != (n,) or np.any(np.diff(positions) <= 0) or length is None or length <= positions[-1]:
+        raise ValueError(f"dedup.signature: positions must be {n} increasing frame numbers below length, "
+                         f"got {positions.shape} and length {length}")
+    planned = sample_positions(int(length), config)  # F x O clip positions
+    if n > 1:  # the nearest decoded frame; the earlier one on a tie
+        after = np.clip(np.searchsorted(positions, planned), 1, n - 1)
+        near = after - (planned - positions[after - 1] <= positions[after] - planned)
+    else:
+        near = np.zeros_like(planned)
+    exact = bool(np.array_equal(positions[near], planned))
+    index = near[:, config.time_radius]
     wanted = np.unique(near)
     grey = {int(i): cv2.cvtColor(frames[i], cv2.COLOR_RGB2GRAY) for i in wanted}
     top, bottom, left, right = _content_box(np.stack([grey[int(i)] for i in index]), config.bar_level)
@@ -159,7 +186,7 @@ def signature(frames: np.ndarray, config: DedupConfig = DedupConfig()) -> ClipSi
             x0, y0, x1, y1 = _crop_box(crop, g.shape[1], g.shape[0])
             hashes[f, c] = _phash64(g[y0:y1, x0:x1])
     thumbs = np.stack([np.stack([small[int(i)] for i in row]) for row in near])
-    return ClipSignature(hashes=hashes, thumbs=thumbs)
+    return ClipSignature(hashes=hashes, thumbs=thumbs, exact=exact)
 
 
 def _bucket_pairs(slot, value, clip, whole, max_bucket):
@@ -372,11 +399,15 @@ def group(
     signatures: Mapping[str, ClipSignature],
     quality: Mapping[str, tuple],
     config: DedupConfig = DedupConfig(),
+    exact: Callable[[list[str]], Mapping[str, ClipSignature]] | None = None,
 ) -> DedupResult:
     """Group duplicate clips and keep the best of each group.
 
     quality: clip id -> comparable tuple, higher is better (see ``quality_key``); ties go to
-    the smallest clip id. Clips without an entry rank lowest.
+    the smallest clip id. Clips without an entry rank lowest. ``exact``, given the ids of
+    clips whose signatures are not exact and that reach the pixel check, returns their
+    signatures from exactly the sampled frames: two copies of fast motion agree only at the
+    same moments, and the analysis pass may have decoded each at different ones.
     """
     ids = sorted(signatures)
     if not ids:
@@ -391,6 +422,9 @@ def group(
     pairs = _candidates(hashes, config)
     dist, hyp, clear = _hash_distance(hashes, pairs)
     close = _nearest(pairs, dist, config)
+    redecode = sorted({ids[i] for i in np.unique(pairs[close]) if not signatures[ids[i]].exact})
+    if exact is not None and redecode:
+        signatures = {**signatures, **{k: v for k, v in exact(redecode).items() if k in signatures}}
     neighbours: dict[str, set[str]] = {}
     verified = 0
     for p in close:
@@ -417,6 +451,7 @@ def group(
         hash_pairs=int((dist <= config.hash_max).sum()),
         checked=len(close),
         verified=verified,
+        redecoded=len(redecode) if exact is not None else 0,
     )
 
 

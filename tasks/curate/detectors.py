@@ -14,6 +14,8 @@ import numpy as np
 from scenedetect.common import FrameTimecode
 from scenedetect.detectors import AdaptiveDetector, ContentDetector
 
+GAP_POWER = 0.5  # a content score over g frames ~ g ** GAP_POWER times one over a frame (see RgbAdaptiveDetector)
+
 
 class _RgbScore:
     """ContentDetector's frame score on RGB frames (PySceneDetect 0.7 with its default weights:
@@ -32,7 +34,42 @@ class _RgbScore:
 
 
 class RgbAdaptiveDetector(_RgbScore, AdaptiveDetector):
-    """AdaptiveDetector fed RGB frames (see ``_RgbScore``)."""
+    """AdaptiveDetector fed RGB frames (see ``_RgbScore``), knowing how far apart they are.
+
+    The analysis pass leaves out frames nothing predicts from, so a frame's score may span
+    two source frames while its neighbours' span one, or the other way round. The stock ratio
+    (score over the mean of its neighbours' scores) then moves with the pattern of frame
+    types: on bikes.mp4 the cut at frame 76 (gap 1, neighbours' gaps 2) fell from 3.2 to 2.35.
+    Here each neighbour's score is scaled to the frame's own gap before the mean:
+    ``score / mean(score_i * (gap / gap_i) ** GAP_POWER)``. Content scores grow slower than
+    the gap (motion saturates the HSV difference), and the power was chosen on the tuning
+    seeds 400-405 by replaying their scores: 1 (linear) let 14 more false cuts through, 0.5
+    recovered 4 missed cuts and added none. With every gap 1 this is the stock ratio, to the bit.
+    """
+
+    def process_frame(self, timecode: FrameTimecode, frame_img: np.ndarray, gap: int = 1) -> list[FrameTimecode]:
+        ContentDetector.process_frame(self, timecode=timecode, frame_img=frame_img)
+        if self._frame_score is None:
+            return []
+        if self._last_cut is None:
+            self._last_cut = timecode
+        required = 1 + 2 * self.window_width
+        self._buffer.append((timecode, self._frame_score, max(1, gap)))
+        if len(self._buffer) < required:
+            return []
+        self._buffer = self._buffer[-required:]
+        target_timecode, target_score, target_gap = self._buffer[self.window_width]
+        average = sum(score if g == target_gap else score * (target_gap / g) ** GAP_POWER
+                      for i, (_, score, g) in enumerate(self._buffer) if i != self.window_width) / (2.0 * self.window_width)
+        if abs(average) >= 0.00001:
+            ratio = min(target_score / average, 255.0)
+        else:
+            ratio = 255.0 if target_score >= self.min_content_val else 0.0
+        if (ratio >= self.adaptive_threshold and target_score >= self.min_content_val
+                and target_timecode - self._last_cut >= self.min_scene_len):
+            self._last_cut = target_timecode
+            return [target_timecode]
+        return []
 
 
 class RgbContentDetector(_RgbScore, ContentDetector):

@@ -41,6 +41,7 @@ from tasks.curate.detectors import RgbAdaptiveDetector, RgbContentDetector
 
 MICROSECOND = Fraction(1, 1_000_000)
 THUMB_WIDTH = 64
+MAX_FILL = 2  # undecoded frames in a row that get interpolated rows (see SceneSplitter.push)
 THUMB_BLUR = 2.0  # px of Gaussian blur on thumbnails: camera motion must not read as new content
 Span = tuple[int, int, str]  # (start, end exclusive, kind) in frame positions
 
@@ -77,9 +78,11 @@ SpanKind = Literal["scene", "too_short", "transition"]
 class Scene:
     """A span of decoded frames [start_frame, end_frame) with its analysis frames.
 
-    ``frames`` is T x h x w x 3 uint8 RGB and ``times`` T float64 seconds (T may be less than
-    end_frame - start_frame when the decoder skipped frames); both are None from
-    ``detect_scenes``. ``end_s`` is the time of the first frame after the span. ``cause``
+    ``frames`` is T x h x w x 3 uint8 RGB, ``times`` T float64 seconds and ``indices`` their
+    source frame numbers (T may be less than end_frame - start_frame when frames were left
+    undecoded or lost); all three are None from ``detect_scenes``. ``start_frame`` is the span's first decoded frame and ``end_frame`` one
+    past its last, so frames undecoded at a boundary belong to no span (but to one of two
+    parts of a split shot). ``end_s`` is the time of frame ``end_frame``. ``cause``
     says what started the span: the video start, a cut, the end of a transition, or an
     equal split of a longer shot; ``detail`` is "fade"/"dissolve" for transitions.
     """
@@ -93,6 +96,7 @@ class Scene:
     detail: str | None = None
     frames: np.ndarray | None = None
     times: np.ndarray | None = None
+    indices: np.ndarray | None = None  # T int64 source frame numbers of ``frames``
 
     @property
     def duration(self) -> float:
@@ -310,9 +314,10 @@ class SceneSplitter:
         self.absorb = max(2, round(0.25 * fps))  # a detector cut this near a transition is it
         self.detector = _detector(config)
         self.rate = Fraction(self.fps).limit_denominator(1001)
-        self.base = 0  # position (decoded-frame order) of the first stored frame
+        self.base = 0  # position of the first stored row
         self.index: list[int] = []
         self.times: list[float] = []
+        self.decoded: list[bool] = []  # False: a row filled in for a frame left undecoded
         self.images: list[np.ndarray | None] = []
         self.luma, self.sharp, self.change = _Rows(np.float64), _Rows(np.float64), _Rows(np.float64)
         self.gap = change_gap(self.max_len)
@@ -324,16 +329,52 @@ class SceneSplitter:
         self.shown = 0  # position of self.images[0]: frames before the open span are dropped
         self.open_cause = "start"
         self.checked = 0  # frontier of the previous settle
-        self.pushed = 0
+        self.pushed = 0  # rows
+        self.settled = -16  # rows at the previous settle, less one
+        self.last: tuple | None = None  # (index, time, luma, thumb, sharp) of the last decoded frame
 
     def push(self, frame: AnalysisFrame) -> list[Scene]:
-        """Take the next frame (in decoded order); return the spans that became final."""
+        """Take the next frame (in decoded order); return the spans that became final.
+
+        Positions count source frames: when one or two frame numbers were skipped (the
+        analysis pass leaves out frames nothing predicts from), each gets a row whose
+        statistics are interpolated between its neighbours, so every window of the transition
+        finder spans the same time whichever frames were decoded. The rows carry no picture:
+        spans hold only decoded frames. Longer gaps (frames lost to errors) are not filled.
+        """
+        luma, thumb, sharp, small = _features(frame.image)
+        if self.last is not None and 1 < frame.index - self.last[0] <= MAX_FILL + 1:
+            i0, t0, l0, th0, s0 = self.last
+            steps = frame.index - i0
+            for k in range(1, steps):
+                w = k / steps
+                self._row(i0 + k, t0 + w * (frame.time - t0), (1 - w) * l0 + w * luma, (1 - w) * th0 + w * thumb,
+                          (1 - w) * s0 + w * sharp, None, decoded=False)
+        gap = frame.index - self.last[0] if self.last is not None else 1
+        self.last = (frame.index, frame.time, luma, thumb, sharp)
+        pos = self._row(frame.index, frame.time, luma, thumb, sharp, frame.image, decoded=True)
+        pts = round(frame.time / MICROSECOND)
+        self.by_pts[pts] = pos
+        code = FrameTimecode(Timecode(pts=pts, time_base=MICROSECOND), fps=self.rate)
+        found = (self.detector.process_frame(code, small, gap) if isinstance(self.detector, RgbAdaptiveDetector)
+                 else self.detector.process_frame(code, small))
+        for cut in found:
+            self.cuts.append(self.by_pts.get(cut.pts, pos))
+        if len(self.by_pts) > 64:
+            del self.by_pts[next(iter(self.by_pts))]
+        if pos - self.settled < 16:
+            return []
+        self.settled = pos
+        return self._settle(pos + 1 - self.lag)
+
+    def _row(self, index: int, time: float, luma: float, thumb: np.ndarray, sharp: float,
+             image: np.ndarray | None, decoded: bool) -> int:
         pos = self.pushed
         self.pushed += 1
-        self.index.append(frame.index)
-        self.times.append(frame.time)
-        self.images.append(frame.image if self.keep_frames else None)  # from position self.shown
-        luma, thumb, sharp, small = _features(frame.image)
+        self.index.append(index)
+        self.times.append(time)
+        self.decoded.append(decoded)
+        self.images.append(image if self.keep_frames else None)  # from position self.shown
         if self.thumbs is None:
             self.thumbs = _Rows(np.float32, thumb.shape)
         self.luma.append(luma)
@@ -343,14 +384,7 @@ class SceneSplitter:
         # over every overlapping search window (that was most of the transition search's time).
         back = pos - 2 * self.gap - self.base
         self.change.append(np.abs(thumb - self.thumbs.view(back)[0]).mean() if back >= 0 else 0.0)
-        pts = round(frame.time / MICROSECOND)
-        self.by_pts[pts] = pos
-        code = FrameTimecode(Timecode(pts=pts, time_base=MICROSECOND), fps=self.rate)
-        for cut in self.detector.process_frame(code, small):
-            self.cuts.append(self.by_pts.get(cut.pts, pos))
-        if len(self.by_pts) > 64:
-            del self.by_pts[next(iter(self.by_pts))]
-        return self._settle(pos + 1 - self.lag) if pos % 16 == 0 else []
+        return pos
 
     def finish(self) -> list[Scene]:
         """The remaining spans, once the last frame has been pushed."""
@@ -400,7 +434,7 @@ class SceneSplitter:
             return []
         times = np.asarray(self.times[self.open - self.base: frontier - self.base])
         end = self.open + int(np.searchsorted(times, start_time + self.config.max_scene_s))
-        part = self._span("scene", self.open, end, self.open_cause)
+        part = self._span("scene", self.open, end, self.open_cause, split_after=True)
         self.open, self.open_cause = end, "split"
         return [part]
 
@@ -415,24 +449,37 @@ class SceneSplitter:
         times = np.asarray(self.times[start - self.base: end - self.base])
         edges = [start] + [start + int(np.searchsorted(times, times[0] + duration * j / parts))
                            for j in range(1, parts)] + [end]
-        return [self._span("scene", s, e, cause if j == 0 else "split")
+        return [self._span("scene", s, e, cause if j == 0 else "split", split_after=j < parts - 1)
                 for j, (s, e) in enumerate(zip(edges[:-1], edges[1:], strict=True))]
 
     def _time(self, pos: int) -> float:
         if pos < self.pushed:
             return self.times[pos - self.base]
-        steps = np.diff(self.times[-9:])  # the end of the last frame: one typical step after it
+        # The end of the last frame: one typical source-frame step after it (frames left
+        # undecoded count: a step over two frame numbers is two steps).
+        steps = np.diff(self.times[-9:]) / np.diff(self.index[-9:])
         return self.times[-1] + (float(np.median(steps)) if len(steps) else 1.0 / self.fps)
 
-    def _span(self, kind: SpanKind, start: int, end: int, cause: str, detail: str | None = None) -> Scene:
+    def _span(self, kind: SpanKind, start: int, end: int, cause: str, detail: str | None = None,
+              split_after: bool = False) -> Scene:
         lo, hi = start - self.base, end - self.base
-        frames = times = None
-        if self.keep_frames:
-            frames = np.stack(self.images[start - self.shown: end - self.shown])
-            times = np.asarray(self.times[lo:hi], np.float64)
-        end_frame = self.index[hi] if hi < len(self.index) else self.index[-1] + 1
-        return Scene(kind=kind, start_frame=self.index[lo], end_frame=end_frame, start_s=self._time(start),
-                     end_s=self._time(end), cause=cause, detail=detail, frames=frames, times=times)
+        real = [k for k in range(lo, hi) if self.decoded[k]]
+        frames = times = indices = None
+        if self.keep_frames and real:  # (a span of filled rows only is at most MAX_FILL frames)
+            frames = np.stack([self.images[k + self.base - self.shown] for k in real])
+            times = np.asarray([self.times[k] for k in real], np.float64)
+            indices = np.asarray([self.index[k] for k in real], np.int64)
+        real = real or list(range(lo, hi))
+        # Source frames between this span's last decoded frame and the next span's first (left
+        # undecoded, or lost) may belong to either side of a cut: they go to neither. Only the
+        # equal parts of one long shot share them.
+        after = real[-1] + 1
+        if split_after:
+            after = next((k for k in range(hi, len(self.index)) if self.decoded[k]), after)
+        end_frame = self.index[after] if after < len(self.index) else self.index[real[-1]] + 1
+        return Scene(kind=kind, start_frame=self.index[real[0]], end_frame=end_frame,
+                     start_s=self.times[real[0]], end_s=self._time(after + self.base), cause=cause, detail=detail,
+                     frames=frames, times=times, indices=indices)
 
     def _forget(self) -> None:
         del self.images[: self.open - self.shown]
@@ -440,7 +487,7 @@ class SceneSplitter:
         drop = self.open - self.lag - self.base
         if drop <= 0:
             return
-        for store in (self.index, self.times):
+        for store in (self.index, self.times, self.decoded):
             del store[:drop]
         for rows in (self.luma, self.sharp, self.thumbs, self.change):
             rows.drop(drop)

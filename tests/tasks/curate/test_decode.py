@@ -10,7 +10,16 @@ import cv2
 import numpy as np
 import pytest
 
-from tasks.curate.decode import AnalysisConfig, DecodeError, DecodeReport, analysis_frames, frame_pts, probe
+from tasks.curate.decode import (
+    AnalysisConfig,
+    DecodeError,
+    DecodeReport,
+    analysis_frames,
+    frame_pts,
+    frames_at,
+    is_reference,
+    probe,
+)
 
 DATA = Path(__file__).resolve().parents[3] / "../shared/data/videos"
 
@@ -45,7 +54,7 @@ def test_probe_reports_what_the_file_declares(make_video):
 def test_every_frame_once_in_order_with_pts_times(make_video):
     path = make_video((coded(i) for i in range(50)), fps=25)
     report = DecodeReport()
-    frames = list(analysis_frames(path, AnalysisConfig(long_side=64), report))
+    frames = list(analysis_frames(path, AnalysisConfig(long_side=64, skip_unreferenced=False), report))
     assert [f.index for f in frames] == list(range(50))
     assert [read_index(f.image) for f in frames] == list(range(50))
     np.testing.assert_allclose([f.time for f in frames], np.arange(50) / 25, atol=1e-6)
@@ -67,8 +76,8 @@ def test_variable_frame_rate_times_come_from_timestamps(make_video):
     info = probe(path)
     assert info.vfr
     frames = list(analysis_frames(path))
-    assert [read_index(f.image) for f in frames] == list(range(30))
-    np.testing.assert_allclose([f.time for f in frames], times, atol=1.5e-3)
+    assert [read_index(f.image) for f in frames] == [f.index for f in frames]
+    np.testing.assert_allclose([f.time for f in frames], times[[f.index for f in frames]], atol=1.5e-3)
 
 
 @pytest.mark.parametrize("rotation", [90, 180, 270])
@@ -78,7 +87,7 @@ def test_rotation_metadata_gives_display_orientation(make_video, rotation):
     assert info.rotation == rotation
     expected_shape = (64, 48) if rotation in (90, 270) else (48, 64)
     assert (info.display_height, info.display_width) == expected_shape
-    frames = list(analysis_frames(path))
+    frames = list(analysis_frames(path, AnalysisConfig(skip_unreferenced=False)))
     assert frames[3].image.shape[:2] == expected_shape
     # Reference: OpenCV applies the same display matrix when it reads (its FFmpeg backend).
     capture = cv2.VideoCapture(str(path))
@@ -106,7 +115,7 @@ def test_odd_width_and_height(make_video):
     assert (info.width, info.height) == (63, 47)
     frames = list(analysis_frames(path))
     assert frames[0].image.shape == (47, 63, 3)
-    assert [read_index(f.image) for f in frames] == list(range(12))
+    assert [read_index(f.image) for f in frames] == [f.index for f in frames]
 
 
 def test_corrupt_frames_in_the_middle_are_skipped_and_counted(make_video, tmp_path):
@@ -120,7 +129,7 @@ def test_corrupt_frames_in_the_middle_are_skipped_and_counted(make_video, tmp_pa
     broken = tmp_path / "broken.mp4"
     broken.write_bytes(bytes(data))
     report = DecodeReport()
-    frames = list(analysis_frames(broken, report=report))
+    frames = list(analysis_frames(broken, AnalysisConfig(skip_unreferenced=False), report=report))
     assert report.decode_errors + report.skipped > 0 and report.problems
     assert 40 <= len(frames) < 60
     # Indices stay those of the timestamps: frames after the next key frame are intact.
@@ -175,9 +184,12 @@ def test_real_footage_decodes_fully():
     if not path.exists():
         pytest.skip("../shared/data is not present")
     info = probe(path)
-    frames = list(analysis_frames(path, info=info))
+    frames = list(analysis_frames(path, AnalysisConfig(skip_unreferenced=False), info=info))
     assert len(frames) == info.n_frames == 250
     assert frames[0].image.shape == (109, 256, 3)
+    report = DecodeReport()
+    assert len(list(analysis_frames(path, info=info, report=report))) == 135  # as FFmpeg's skip_frame NONREF
+    assert (report.unreferenced, report.missing) == (115, 0)
 
 
 def test_skipping_deblocking_on_unreferenced_frames_cannot_drift(make_video):
@@ -189,9 +201,61 @@ def test_skipping_deblocking_on_unreferenced_frames_cannot_drift(make_video):
     with av.open(str(path)) as container:
         kinds = [PictureType(frame.pict_type).name for frame in container.decode(video=0)]
     assert "B" in kinds and "P" in kinds
-    decoded = {mode: [f.image for f in analysis_frames(path, AnalysisConfig(long_side=320, skip_loop_filter=mode))]
-               for mode in ("none", "noref", "all")}
+    decoded = {mode: [f.image for f in analysis_frames(
+        path, AnalysisConfig(long_side=320, skip_loop_filter=mode, skip_unreferenced=False))]
+        for mode in ("none", "noref", "all")}
     anchors = [i for i, kind in enumerate(kinds) if kind in "IP"]
     assert all(np.array_equal(decoded["noref"][i], decoded["none"][i]) for i in anchors)
     assert any(not np.array_equal(decoded["noref"][i], decoded["none"][i]) for i in range(len(kinds)))
     assert any(not np.array_equal(decoded["all"][i], decoded["none"][i]) for i in anchors if kinds[i] == "P")
+
+
+def picture_types(path: Path) -> list[str]:
+    with av.open(str(path)) as container:
+        return [PictureType(frame.pict_type).name for frame in container.decode(video=0)]
+
+
+def test_unreferenced_frames_are_left_undecoded_and_the_rest_keep_their_numbers(make_video):
+    path = make_video((coded(i) for i in range(60)), fps=25)
+    every = {f.index: f for f in analysis_frames(path, AnalysisConfig(long_side=64, skip_unreferenced=False))}
+    report = DecodeReport()
+    frames = list(analysis_frames(path, AnalysisConfig(long_side=64), report))
+    kinds = picture_types(path)
+    indices = [f.index for f in frames]
+    # Every I and P frame is decoded (something predicts from them), so are B-frames used as
+    # references (x264's pyramid); plain B-frames are not, and gaps stay short.
+    assert {i for i, kind in enumerate(kinds) if kind in "IP"} <= set(indices)
+    assert 0 < len(frames) < 45 and max(np.diff(indices)) <= 2
+    assert (report.frames, report.unreferenced, report.missing, report.corrupt) == (len(frames), 60 - len(frames), 0, 0)
+    for f in frames:  # the same pictures, numbers and times as a pass decoding everything
+        assert read_index(f.image) == f.index and f.time == pytest.approx(every[f.index].time)
+        np.testing.assert_array_equal(f.image, every[f.index].image)
+
+
+def test_is_reference_reads_nal_ref_idc_in_both_framings():
+    slice_ref, slice_unref, idr, sei = b"\x21\xe0", b"\x01\xe0", b"\x65\x88", b"\x06\x05"
+    annex_b = b"\x00\x00\x00\x01\x09\xf0\x00\x00\x01"
+    assert not is_reference(annex_b + slice_unref, 0)
+    assert is_reference(annex_b + slice_ref, 0)
+    assert is_reference(b"\x00\x00\x01" + idr, 0)
+
+    def avcc(*units: bytes) -> bytes:
+        return b"".join(len(u).to_bytes(4, "big") + u for u in units)
+
+    assert not is_reference(avcc(sei, slice_unref, slice_unref), 4)
+    assert is_reference(avcc(slice_unref, slice_ref), 4)  # one referenced slice is enough
+    assert is_reference(avcc(sei), 4)  # no slice: nothing known, decode it
+    assert is_reference(b"\x00\x00\x00\x09\x01", 4)  # a length past the end: unparsable
+
+
+def test_frames_at_gives_exactly_the_full_decode_across_key_frames(make_video):
+    path = make_video((coded(i) for i in range(90)), fps=25, gop=20)
+    config = AnalysisConfig(long_side=64)
+    every = {f.index: f.image for f in analysis_frames(path, config.model_copy(update={"skip_unreferenced": False}))}
+    decoded = {f.index for f in analysis_frames(path, config)}
+    skipped = sorted(set(range(90)) - decoded)
+    wanted = [skipped[0], skipped[1], 45, skipped[-1], 89, 3, 1000, -1]
+    got = frames_at(path, wanted, config)
+    assert sorted(got) == sorted(i for i in wanted if 0 <= i < 90)
+    for i, image in got.items():
+        np.testing.assert_array_equal(image, every[i])

@@ -289,3 +289,47 @@ def test_takes_that_differ_at_one_sampled_moment_are_not_copies(corpus):
                                 dedup._crop_matrix(DedupConfig().crops[0], 32)).min(axis=1)
     assert per_frame.mean() <= DedupConfig().residual_max < per_frame.max()  # a mean would merge them
     assert group({"a": sa, "b": sb}, {}).removed == {}
+
+
+def racing(seed: int, speed: int = 11) -> np.ndarray:
+    """A texture passing fast (``speed`` px a frame): a frame apart is a different picture."""
+    big = _texture(np.random.default_rng(seed), H, W + speed * T)
+    return np.stack([big[:, speed * t: speed * t + W] for t in range(T)])
+
+
+def test_signature_samples_positions_and_says_when_it_is_not_exact():
+    frames = racing(5)
+    every = np.arange(T)
+    full = signature(frames, positions=every, length=T)
+    assert full.exact and np.array_equal(full.thumbs, signature(frames).thumbs)
+    odd = signature(frames[1::2], positions=every[1::2], length=T)
+    assert not odd.exact and odd.thumbs.shape == full.thumbs.shape
+    # Each sampled position takes its nearest decoded frame.
+    wanted = dedup.sample_positions(T)
+    assert all(np.array_equal(odd.thumbs[f, o], full.thumbs[f, o]) for f in range(5) for o in range(5)
+               if wanted[f, o] % 2 == 1)
+    with pytest.raises(ValueError, match="increasing frame numbers below length"):
+        signature(frames[:3], positions=[0, 2, 1], length=T)
+    with pytest.raises(ValueError, match="increasing frame numbers below length"):
+        signature(frames[:3], positions=[0, 1, 2], length=2)
+
+
+def test_copies_decoded_at_different_moments_are_found_with_their_exact_frames():
+    # The analysis pass decodes reference frames only, and where they fall depends on each
+    # encoding: here the original kept its even frames and a brighter copy its odd ones.
+    original = racing(6)
+    copy = brightness(original, 12)
+    every = np.arange(T)
+    approximate = {"a": signature(original[::2], positions=every[::2], length=T),
+                   "b": signature(copy[1::2], positions=every[1::2], length=T)}
+    exact = {"a": signature(original), "b": signature(copy)}
+    asked = []
+
+    def redecode(ids):
+        asked.append(list(ids))
+        return {i: exact[i] for i in ids}
+
+    assert group(approximate, {}).removed == {}  # a frame apart, fast motion is not a copy
+    result = group(approximate, {}, exact=redecode)
+    assert result.removed == {"b": "a"} and result.redecoded == 2 and asked == [["a", "b"]]
+    assert group(exact, {}, exact=redecode).redecoded == 0 and len(asked) == 1  # exact ones are not asked for

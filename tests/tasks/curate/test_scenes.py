@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tasks.curate.decode import AnalysisFrame
+from tasks.curate.decode import AnalysisConfig, AnalysisFrame, analysis_frames
 from tasks.curate.scenes import (
     SceneConfig,
     SceneSplitter,
@@ -95,9 +95,18 @@ def test_cuts_fades_and_dissolves_are_found(edited):
         assert abs(span.start_frame - start) <= 2 and abs(span.end_frame - end) <= 2
     score = cut_f1(predicted, cuts, [(a, b) for a, b, _ in transitions])
     assert score["f1"] == 1.0
-    # Spans tile the video: every frame is in exactly one scene or transition.
-    assert spans[0].start_frame == 0 and spans[-1].end_frame == len(edit(PLAN)[0])
-    assert all(a.end_frame == b.start_frame for a, b in zip(spans, spans[1:]))
+    # Spans tile the decoded frames: each is in exactly one scene or transition, and the
+    # frames between two spans are frames the analysis pass left undecoded.
+    decoded = [f.index for f in analysis_frames(path)]
+    covered = [i for s in spans for i in range(s.start_frame, s.end_frame)]
+    assert set(decoded) <= set(covered) and len(covered) == len(set(covered))
+    assert set(covered) | set(range(len(edit(PLAN)[0]))) == set(range(len(edit(PLAN)[0])))
+    assert all(a.end_frame <= b.start_frame and not set(range(a.end_frame, b.start_frame)) & set(decoded)
+               for a, b in zip(spans, spans[1:]))
+    every = detect_scenes(path, analysis=AnalysisConfig(skip_unreferenced=False), include_rejected=True)
+    assert spans[0].start_frame == 0 and every[-1].end_frame == len(edit(PLAN)[0])
+    assert all(a.end_frame == b.start_frame for a, b in zip(every, every[1:]))
+    assert [p for p in boundaries(every) if isinstance(p, int)] == cuts
     assert all(s.kind == "scene" for s in spans if s.kind != "transition")
 
 
@@ -107,9 +116,9 @@ def test_scene_frames_and_times_match_the_spans(edited):
     without = detect_scenes(path, include_rejected=True)
     assert [s.summary() for s in spans] == [s.summary() for s in without]  # one code path
     for span in spans:
-        assert span.frames.shape == (span.end_frame - span.start_frame, H, W, 3)
-        assert span.frames.dtype == np.uint8
-        np.testing.assert_allclose(span.times, np.arange(span.start_frame, span.end_frame) / FPS, atol=1e-6)
+        assert span.frames.shape == (len(span.indices), H, W, 3) and span.frames.dtype == np.uint8
+        assert span.indices[0] == span.start_frame and span.indices[-1] + 1 == span.end_frame
+        np.testing.assert_allclose(span.times, span.indices / FPS, atol=1e-6)
         assert span.start_s == pytest.approx(span.start_frame / FPS)
         assert span.end_s == pytest.approx(span.end_frame / FPS)
 
@@ -117,14 +126,15 @@ def test_scene_frames_and_times_match_the_spans(edited):
 def test_short_scenes_are_reported_and_long_ones_split_equally(make_video):
     frames, cuts, _ = edit([(250, None), (30, ("cut", 0)), (60, ("cut", 0))])
     path = make_video(frames, fps=FPS)
-    spans = detect_scenes(path, SceneConfig(max_scene_s=6.0), include_rejected=True)
+    every = AnalysisConfig(skip_unreferenced=False)
+    spans = detect_scenes(path, SceneConfig(max_scene_s=6.0), every, include_rejected=True)
     kinds = [(s.kind, s.start_frame, s.end_frame, s.cause) for s in spans]
     # 10 s shot -> two parts of 5 s; 1.2 s shot -> too short; 2.4 s shot kept.
     assert kinds == [("scene", 0, 125, "start"), ("scene", 125, 250, "split"),
                      ("too_short", 250, 280, "cut"), ("scene", 280, 340, "cut")]
     assert boundaries(spans) == cuts
     # Past 2 x max_scene_s the open shot is cut as it goes (memory): max first, then equal parts.
-    spans = detect_scenes(path, SceneConfig(max_scene_s=4.0))
+    spans = detect_scenes(path, SceneConfig(max_scene_s=4.0), every)
     assert [(s.start_frame, s.end_frame) for s in spans][:3] == [(0, 100), (100, 175), (175, 250)]
 
 
@@ -221,3 +231,19 @@ def test_streamed_frame_change_equals_the_batch_measure_and_finds_the_same_trans
         found.append(find_transitions(*args, ended=True))
         assert find_transitions(*args, ended=True, change=change[lo:]) == found[-1]
     assert any(found)
+
+
+def test_frames_left_undecoded_do_not_stretch_the_transition_windows():
+    # The analysis pass leaves out frames nothing predicts from (one in three, or every other).
+    # Rows filled in for them keep every window of the transition finder at the same length
+    # in time, so the same fades and dissolves come out, and the spans hold only real frames.
+    frames = [AnalysisFrame(index=i, time=i / FPS, image=f) for i, f in enumerate(edit(PLAN)[0])]
+    every = list(split_scenes(frames, FPS))
+    for kept in ([f for f in frames if f.index % 3 != 1], [f for f in frames if f.index % 2 == 0]):
+        spans = list(split_scenes(kept, FPS))
+        assert [(s.kind, s.cause, s.detail) for s in spans] == [(s.kind, s.cause, s.detail) for s in every]
+        for span, reference in zip(spans, every):
+            assert abs(span.start_frame - reference.start_frame) <= 2 and abs(span.end_frame - reference.end_frame) <= 2
+        pushed = {f.index for f in kept}
+        assert all(set(s.indices.tolist()) <= pushed and s.start_frame in pushed for s in spans)
+        assert all(s.end_frame - 1 in pushed for s, after in zip(spans, spans[1:]) if after.cause != "split")
