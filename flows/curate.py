@@ -105,15 +105,27 @@ def deduplicate(run: RunContext, analyses: list[analyse.VideoAnalysis], config: 
     t0 = time.perf_counter()
     kept = [c for a in analyses for c in a.clips if c.kept]
     signatures = {cid: s for a in analyses for cid, s in a.signatures.items()}
+    exact: dict[str, dedup.ClipSignature] = {}
     result = dedup.group(signatures, {c.clip_id: dedup.quality_key(c, config.dedup) for c in kept}, config.dedup,
-                         exact=analyse.exact_for(kept, config))
-    judged = dedup.apply(kept, signatures, result)
+                         exact=analyse.exact_for(kept, config, exact))
+    _keep_exact(run, analyses, exact, config)
+    judged = dedup.apply(kept, {**signatures, **exact}, result)  # as a re-run will read them
     key = stable_id("dedup", *sorted(signatures), config.analysis_hash())
     stage = _stage(run, "dedup", key, len(kept), len(result.kept), t0, groups=len(result.groups),
                    redecoded=result.redecoded)
     removed = [c for c in judged if not c.kept]
     run.write(LineageBatch(stage_runs=[stage]).extend(lineage.clips(removed, stage.stage_run_id)))
     return [c for c in judged if c.kept]
+
+
+def _keep_exact(run: RunContext, analyses: list[analyse.VideoAnalysis], exact: dict[str, dedup.ClipSignature],
+                config: CurateConfig) -> None:
+    """Signatures dedup had decoded exactly go into their analyses' caches: a re-run decodes nothing."""
+    for a in analyses:
+        if mine := {cid: s for cid, s in exact.items() if cid in a.signatures}:
+            a.signatures.update(mine)
+            analyse.save(a, paths.resolve(run.settings.data_root, paths.ANALYSIS_FILE, sha256=a.sha256,
+                                          config_hash=config.analysis_hash()))
 
 
 def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -> list[ClipRecord]:

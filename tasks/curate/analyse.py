@@ -133,10 +133,19 @@ def exact_signatures(spans: Mapping[str, tuple[str | Path, int, int]],
     return out
 
 
-def exact_for(clips: Iterable[ClipRecord], config: CurateConfig = CurateConfig()):
-    """``dedup.group``'s ``exact`` callback for these clips (their sources and spans)."""
+def exact_for(clips: Iterable[ClipRecord], config: CurateConfig = CurateConfig(),
+              found: dict[str, dedup.ClipSignature] | None = None):
+    """``dedup.group``'s ``exact`` callback for these clips (their sources and spans); what it
+    decodes is also put in ``found``, for the caller to keep."""
     spans = {c.clip_id: (c.source_uri, c.start_frame, c.end_frame) for c in clips}
-    return lambda ids: exact_signatures({cid: spans[cid] for cid in ids if cid in spans}, config)
+
+    def exact(ids: list[str]) -> dict[str, dedup.ClipSignature]:
+        got = exact_signatures({cid: spans[cid] for cid in ids if cid in spans}, config)
+        if found is not None:
+            found.update(got)
+        return got
+
+    return exact
 
 
 def _atomic_write(path: Path, data: bytes) -> None:

@@ -5,6 +5,7 @@ import hashlib
 import pytest
 
 from flows.curate import curate
+from tasks.curate import analyse
 from schemas.settings import Settings
 from warehouse import audit
 from warehouse.store import Warehouse
@@ -37,7 +38,7 @@ def _digests(root):
             for p in sorted((root / "shards").rglob("*.parquet"))}
 
 
-def test_curate_batch_then_rerun(prefect_harness, data_root, batch):
+def test_curate_batch_then_rerun(prefect_harness, data_root, batch, monkeypatch):
     first = curate([str(batch)], str(MANIFEST))
     assert first["status"] == "partial" and first["failed"] == 2 and first["inputs"] == 5
     assert first["counts"]["dedup/duplicate"] == 1
@@ -47,6 +48,7 @@ def test_curate_batch_then_rerun(prefect_harness, data_root, batch):
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         _, rejected = wh.query("SELECT stage, reason, detail FROM rejections ORDER BY stage")
         _, analysed = wh.query("SELECT count(*) FROM stage_runs WHERE stage = 'analyse'")
+        _, redecoded = wh.query("SELECT attrs->>'redecoded' FROM stage_runs WHERE stage = 'dedup'")
         _, shard_ids = wh.query("SELECT artifact_id FROM artifacts WHERE kind = 'shard'")
         sql, _ = audit.bind("ancestry", {"artifact": "x"})
         _, ancestry = wh.query(sql, {"artifact": shard_ids[0][0]})
@@ -54,7 +56,14 @@ def test_curate_batch_then_rerun(prefect_harness, data_root, batch):
     assert any(s == "dedup" and d.startswith("duplicate of") for s, _, d in rejected)
     assert {r[1] for r in ancestry} >= {"shard", "clip", "raw_video", "manifest"}
     assert analysed == [(3,)]
+    # The copy and its original reached dedup's pixel check with frames the analysis pass left
+    # undecoded: their sampled frames were decoded exactly, and kept for the re-run.
+    assert redecoded == [("2",)]
 
+    def no_decoding(*args, **kwargs):
+        raise AssertionError("a re-run decoded frames for dedup")
+
+    monkeypatch.setattr(analyse, "frames_at", no_decoding)
     second = curate([str(batch)], str(MANIFEST))
     assert second["clips"] == first["clips"] and second["counts"] == first["counts"]
     assert _digests(data_root) == shards  # byte-identical shards
