@@ -2,9 +2,10 @@
 
 The stock detectors take BGR frames and measure frame differences on int32 numpy copies; the
 classes here take RGB (the analysis frames' order, so no BGR copy is made) and difference
-uint8 planes in OpenCV. Scores and cuts are bit for bit the stock ones: the sums are exact
-integers either way, and test_scenes checks every frame score against the stock detector
-on real footage.
+uint8 planes in OpenCV. Scores are bit for bit the stock ones (the sums are exact integers
+either way), and so are cuts when every frame is decoded: test_detectors checks both against
+the stock detectors on real footage. Frames left undecoded change the adaptive ratio only
+(``RgbAdaptiveDetector``).
 """
 
 from __future__ import annotations
