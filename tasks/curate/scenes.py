@@ -455,10 +455,12 @@ class SceneSplitter:
     def _time(self, pos: int) -> float:
         if pos < self.pushed:
             return self.times[pos - self.base]
-        # The end of the last frame: one typical source-frame step after it (frames left
-        # undecoded count: a step over two frame numbers is two steps).
+        return self.times[-1] + self._step()  # the end of the last frame
+
+    def _step(self) -> float:
+        """A typical source frame's duration, from the last few rows."""
         steps = np.diff(self.times[-9:]) / np.diff(self.index[-9:])
-        return self.times[-1] + (float(np.median(steps)) if len(steps) else 1.0 / self.fps)
+        return float(np.median(steps)) if len(steps) else 1.0 / self.fps
 
     def _span(self, kind: SpanKind, start: int, end: int, cause: str, detail: str | None = None,
               split_after: bool = False) -> Scene:
@@ -473,13 +475,14 @@ class SceneSplitter:
         # Source frames between this span's last decoded frame and the next span's first (left
         # undecoded, or lost) may belong to either side of a cut: they go to neither. Only the
         # equal parts of one long shot share them.
-        after = real[-1] + 1
-        if split_after:
-            after = next((k for k in range(hi, len(self.index)) if self.decoded[k]), after)
-        end_frame = self.index[after] if after < len(self.index) else self.index[real[-1]] + 1
-        return Scene(kind=kind, start_frame=self.index[real[0]], end_frame=end_frame,
-                     start_s=self.times[real[0]], end_s=self._time(after + self.base), cause=cause, detail=detail,
-                     frames=frames, times=times, indices=indices)
+        last = real[-1]
+        after = next((k for k in range(hi, len(self.index)) if self.decoded[k]), None) if split_after else last + 1
+        if after is not None and after < len(self.index) and (split_after or self.index[after] == self.index[last] + 1):
+            end_frame, end_s = self.index[after], self.times[after]
+        else:  # the end of the video, or frames lost after the span
+            end_frame, end_s = self.index[last] + 1, self.times[last] + self._step()
+        return Scene(kind=kind, start_frame=self.index[real[0]], end_frame=end_frame, start_s=self.times[real[0]],
+                     end_s=end_s, cause=cause, detail=detail, frames=frames, times=times, indices=indices)
 
     def _forget(self) -> None:
         del self.images[: self.open - self.shown]

@@ -247,3 +247,14 @@ def test_frames_left_undecoded_do_not_stretch_the_transition_windows():
         pushed = {f.index for f in kept}
         assert all(set(s.indices.tolist()) <= pushed and s.start_frame in pushed for s in spans)
         assert all(s.end_frame - 1 in pushed for s, after in zip(spans, spans[1:]) if after.cause != "split")
+
+
+def test_frames_lost_before_a_cut_belong_to_neither_scene():
+    frames, cuts, _ = edit([(110, None), (90, ("cut", 0))])
+    assert cuts == [110]
+    kept = [AnalysisFrame(index=i, time=i / FPS, image=f) for i, f in enumerate(frames) if not 100 <= i < 110]
+    spans = list(split_scenes(kept, FPS))
+    assert [(s.kind, s.start_frame, s.end_frame, s.cause) for s in spans] == [
+        ("scene", 0, 100, "start"), ("scene", 110, 200, "cut")]
+    assert spans[0].end_s == pytest.approx(100 / FPS) and spans[1].end_s == pytest.approx(200 / FPS)
+    assert spans[0].indices[-1] == 99 and len(spans[0].frames) == 100
