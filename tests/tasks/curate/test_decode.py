@@ -259,3 +259,24 @@ def test_frames_at_gives_exactly_the_full_decode_across_key_frames(make_video):
     assert sorted(got) == sorted(i for i in wanted if 0 <= i < 90)
     for i, image in got.items():
         np.testing.assert_array_equal(image, every[i])
+
+
+@pytest.mark.parametrize("container_format, suffix", [("mpegts", "ts"), ("matroska", "mkv")])
+def test_unreferenced_frames_are_found_in_annex_b_and_length_prefixed_streams(tmp_path, container_format, suffix):
+    # MPEG-TS carries H.264 with start codes (Annex B), Matroska with length prefixes (avcC).
+    path = tmp_path / f"video.{suffix}"
+    with av.open(str(path), "w", format=container_format) as container:
+        stream = container.add_stream("libx264", rate=25)
+        stream.width, stream.height, stream.pix_fmt = 64, 48, "yuv420p"
+        stream.options = {"preset": "veryfast", "crf": "12"}
+        for i in range(60):
+            for packet in stream.encode(av.VideoFrame.from_ndarray(coded(i), format="rgb24")):
+                container.mux(packet)
+        for packet in stream.encode():
+            container.mux(packet)
+    every = {f.index: f.image for f in analysis_frames(path, AnalysisConfig(long_side=64, skip_unreferenced=False))}
+    report = DecodeReport()
+    frames = list(analysis_frames(path, AnalysisConfig(long_side=64), report))
+    assert len(every) == 60 and 0 < len(frames) < 45
+    assert (report.unreferenced, report.missing) == (60 - len(frames), 0)
+    assert all(read_index(f.image) == f.index and np.array_equal(f.image, every[f.index]) for f in frames)
