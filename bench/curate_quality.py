@@ -128,12 +128,7 @@ def dedup_pairs(rows: list[dict], config: CurateConfig) -> tuple[int, int, int, 
     if not clean:
         return 0, 0, 0, 0, []
     signatures = {row["key"]: row["signature"] for row in clean}
-    spans, redecoded = {row["key"]: row["span"] for row in clean}, {}
-
-    def exact(ids):  # as the flow's: the sampled frames decoded exactly, once per clip
-        redecoded.update(analyse.exact_signatures({k: spans[k] for k in ids if k not in redecoded}, config))
-        return {k: redecoded[k] for k in ids if k in redecoded}
-
+    exact = analyse.exact_for({row["key"]: row["span"] for row in clean}, config)  # as the flow's
     result = dedup.group(signatures, {row["key"]: (0, row["sharpness"]) for row in clean}, config.dedup, exact)
     group_of = {m: k for k, members in result.groups.items() for m in members}
     content = {row["key"]: row["segment"]["content_id"] for row in clean}

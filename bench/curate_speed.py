@@ -121,7 +121,7 @@ def curate_once(videos: list[Path], root: Path, config: CurateConfig, workers: i
         kept = [c for a in analyses for c in a.clips if c.kept]
         signatures = {cid: s for a in analyses for cid, s in a.signatures.items()}
         result = dedup.group(signatures, {c.clip_id: dedup.quality_key(c, config.dedup) for c in kept}, config.dedup,
-                             exact=analyse.exact_for(kept, config))
+                             exact=analyse.exact_for(analyse.clip_spans(kept), config))
         unique = [c for c in dedup.apply(kept, signatures, result) if c.kept]
         stages["dedup"] = time.perf_counter() - t0
 

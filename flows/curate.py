@@ -107,7 +107,7 @@ def deduplicate(run: RunContext, analyses: list[analyse.VideoAnalysis], config: 
     signatures = {cid: s for a in analyses for cid, s in a.signatures.items()}
     exact: dict[str, dedup.ClipSignature] = {}
     result = dedup.group(signatures, {c.clip_id: dedup.quality_key(c, config.dedup) for c in kept}, config.dedup,
-                         exact=analyse.exact_for(kept, config, exact))
+                         exact=analyse.exact_for(analyse.clip_spans(kept), config, exact))
     _keep_exact(run, analyses, exact, config)
     judged = dedup.apply(kept, {**signatures, **exact}, result)  # as a re-run will read them
     key = stable_id("dedup", *sorted(signatures), config.analysis_hash())

@@ -133,17 +133,20 @@ def exact_signatures(spans: Mapping[str, tuple[str | Path, int, int]],
     return out
 
 
-def exact_for(clips: Iterable[ClipRecord], config: CurateConfig = CurateConfig(),
+def clip_spans(clips: Iterable[ClipRecord]) -> dict[str, tuple[str | Path, int, int]]:
+    """clip id -> (source video, start frame, end frame), as ``exact_signatures`` takes them."""
+    return {c.clip_id: (c.source_uri, c.start_frame, c.end_frame) for c in clips}
+
+
+def exact_for(spans: Mapping[str, tuple[str | Path, int, int]], config: CurateConfig = CurateConfig(),
               found: dict[str, dedup.ClipSignature] | None = None):
-    """``dedup.group``'s ``exact`` callback for these clips (their sources and spans); what it
-    decodes is also put in ``found``, for the caller to keep."""
-    spans = {c.clip_id: (c.source_uri, c.start_frame, c.end_frame) for c in clips}
+    """``dedup.group``'s ``exact`` callback for these spans (see ``clip_spans``). What it decodes
+    goes into ``found`` (for the caller to keep), and a clip found already is not decoded again."""
+    found = {} if found is None else found
 
     def exact(ids: list[str]) -> dict[str, dedup.ClipSignature]:
-        got = exact_signatures({cid: spans[cid] for cid in ids if cid in spans}, config)
-        if found is not None:
-            found.update(got)
-        return got
+        found.update(exact_signatures({cid: spans[cid] for cid in ids if cid in spans and cid not in found}, config))
+        return {cid: found[cid] for cid in ids if cid in found}
 
     return exact
 

@@ -273,7 +273,7 @@ def is_reference(data, length_size: int) -> bool:
     """False only when every slice of an H.264 access unit has nal_ref_idc 0, so that no other
     frame predicts from it and it may be left undecoded (anything unparsable counts as a
     reference). ``length_size`` from ``nal_length_size``."""
-    data = memoryview(data)
+    data = bytes(data)
     n, pos, slices = len(data), 0, 0
     while pos < n:
         if length_size:
@@ -284,12 +284,12 @@ def is_reference(data, length_size: int) -> bool:
             if size <= 0 or pos > n:
                 return True
         else:  # Annex B: the unit runs to the next 00 00 01 start code
-            found = bytes(data[pos:]).find(b"\x00\x00\x01")
+            found = data.find(b"\x00\x00\x01", pos)
             if found < 0:
                 break
-            start = pos + found + 3
-            following = bytes(data[start:]).find(b"\x00\x00\x01")
-            pos = n if following < 0 else start + following
+            start = found + 3
+            following = data.find(b"\x00\x00\x01", start)
+            pos = n if following < 0 else following
             if start >= n:
                 break
         header = data[start]

@@ -75,3 +75,7 @@ class RgbAdaptiveDetector(_RgbScore, AdaptiveDetector):
 
 class RgbContentDetector(_RgbScore, ContentDetector):
     """ContentDetector fed RGB frames (see ``_RgbScore``)."""
+
+    def process_frame(self, timecode: FrameTimecode, frame_img: np.ndarray, gap: int = 1) -> list[FrameTimecode]:
+        """``gap`` is taken as RgbAdaptiveDetector takes it, and unused: this threshold is absolute."""
+        return super().process_frame(timecode, frame_img)

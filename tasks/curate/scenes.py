@@ -356,9 +356,7 @@ class SceneSplitter:
         pts = round(frame.time / MICROSECOND)
         self.by_pts[pts] = pos
         code = FrameTimecode(Timecode(pts=pts, time_base=MICROSECOND), fps=self.rate)
-        found = (self.detector.process_frame(code, small, gap) if isinstance(self.detector, RgbAdaptiveDetector)
-                 else self.detector.process_frame(code, small))
-        for cut in found:
+        for cut in self.detector.process_frame(code, small, gap):
             self.cuts.append(self.by_pts.get(cut.pts, pos))
         if len(self.by_pts) > 64:
             del self.by_pts[next(iter(self.by_pts))]
