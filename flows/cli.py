@@ -444,6 +444,9 @@ def train(
                                                                       "from one latent frame to the next"),
     self_condition: float = typer.Option(0.0, min=0.0, max=1.0, help="share of post-training windows whose input "
                                          "frames after the first are the model's own rollout (open-loop robustness)"),
+    action_totals: int = typer.Option(0, min=0, max=8, help="post-training: the first N action values also enter as "
+                                      "running totals since the episode's start (3 for ee_delta actions: the "
+                                      "commanded hand's offset, which a few-frame window cannot add up)"),
 ) -> None:
     """Pre-train a world model on token shards, post-train it with actions on episodes (Prefect flow `train`)."""
     from models.world_model import PRESETS
@@ -468,7 +471,7 @@ def train(
     try:
         result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, batch_size=batch, window=window,
                             camera=camera, patch=patch, change_weight=change_weight,
-                            self_condition=self_condition)
+                            self_condition=self_condition, action_totals=action_totals)
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
     done = {True: "trained", False: "already trained"}

@@ -98,7 +98,8 @@ def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, lis
         raise ValueError(f"{wm_folder}: not post-trained with actions; give a post-trained world model")
     out, memorising = {}, {}
     for name, truths in per_camera.items():
-        prepared = [heldout.prepare(f"seed{seed}", t, cameras[name], tokenizer, size, model.config.action_dim, text)
+        prepared = [heldout.prepare(f"seed{seed}", t, cameras[name], tokenizer, size, model.config.action_dim, text,
+                                    totals=model.config.action_totals)
                     for seed, t in truths]
         out[name] = heldout.predict(model, tokenizer, prepared, context, horizon, stride, move_m, shuffle_seed)
         if not memorising:  # the primary camera comes first
@@ -106,7 +107,7 @@ def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, lis
             window = window_length(held, model.config.max_frames)
             memorising["held_out"] = teacher_forced(model, held, window, stride)
             seen = data.load_episodes(trained[:len(prepared)], tokenizer, size, [name], model.config.action_dim,
-                                      text, tokenizer_id, root)
+                                      text, tokenizer_id, root, model.config.action_totals)
             if any(s.frames >= window for s in seen):
                 memorising["trained"] = teacher_forced(model, seen, window, stride)
     return out, memorising

@@ -148,10 +148,10 @@ def load_tokens(files: list[Path], root: Path) -> list[data.CodeSequence]:
 
 @task(name="encode-episode", retries=1)
 def encode_episode(directory: Path, tokenizer_folder: Path, tokenizer_id: str, size: int, cameras: list[str] | None,
-                   action_dim: int, text: str | None, root: Path) -> list[data.CodeSequence]:
+                   action_dim: int, text: str | None, root: Path, totals: int = 0) -> list[data.CodeSequence]:
     """Every camera (or the ones named) of one episode as codes with aligned actions (cached under root)."""
     tokenizer = tokens.load_checkpoint(tokenizer_folder)
-    return data.load_episodes([directory], tokenizer, size, cameras, action_dim, text, tokenizer_id, root)
+    return data.load_episodes([directory], tokenizer, size, cameras, action_dim, text, tokenizer_id, root, totals)
 
 
 def _tensorboard(folder: Path):
@@ -193,7 +193,7 @@ def posttrain(pretrained: Path, episodes: list[data.CodeSequence], config: World
 def _meaning(config: WorldTrainConfig) -> str:
     # Threads change float summation order, not what is trained: the same run elsewhere is skipped.
     # A field added later is left out at its default, so checkpoints trained before it keep their ids.
-    unset = {"self_condition"} if not config.self_condition else set()
+    unset = {name for name in ("self_condition", "action_totals") if not getattr(config, name)}
     return content_hash(config.model_dump(mode="json", exclude={"threads", *unset}))
 
 
@@ -224,14 +224,16 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
           pretrain_steps: Steps = 200, posttrain_steps: Steps = 100, batch_size: Batch = 8,
           window: Annotated[int, Field(ge=2, le=64)] | None = None,
           camera: str | None = None, seed: Seed = 0, patch: Annotated[int, Field(ge=1, le=16)] | None = None,
-          change_weight: Weight = 0.0, self_condition: Share = 0.0) -> dict:
+          change_weight: Weight = 0.0, self_condition: Share = 0.0,
+          action_totals: Annotated[int, Field(ge=0, le=8)] = 0) -> dict:
     """Pre-train world model ``preset_name`` on ``tokenizer``'s token shards (or ``token_shards``),
     then post-train it with actions on the simulated episodes of ``manifest`` (a YAML, an
     episode folder or a manifest hash), every camera or only ``camera``. ``patch``: codes per
     token side (default `token_patch`: at most 64 tokens per latent frame). ``change_weight``:
     extra loss weight on codes that change from one latent frame to the next. ``self_condition``:
     share of post-training windows that read the model's own rollout instead of the true frames
-    (``tasks.world.train.own_inputs``)."""
+    (``tasks.world.train.own_inputs``). ``action_totals``: the first n action values also enter
+    as running totals since the episode's start (3 for ``ee_delta``: where the hand was sent)."""
     settings = Settings()
     root = settings.data_root.resolve()
     folders, scenario = episode_folders(manifest, root)
@@ -241,7 +243,8 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                               "preset": preset_name, "pretrain_steps": pretrain_steps,
                               "posttrain_steps": posttrain_steps, "batch_size": batch_size, "window": window,
                               "camera": camera, "seed": seed, "patch": patch,
-                              "change_weight": change_weight, "self_condition": self_condition}) as run:
+                              "change_weight": change_weight, "self_condition": self_condition,
+                              "action_totals": action_totals}) as run:
         tok_folder, tok_id, tok_config = tokenizer_checkpoint(run, tokenizer)
         shards, sequences, (grid_h, grid_w), size = token_inputs(run, tok_id, token_shards)
         hashes = {mh for *_, mh in shards if mh}
@@ -254,7 +257,8 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                                       threads=threads, change_weight=change_weight)
         post_config = WorldTrainConfig(preset=preset_name, steps=posttrain_steps, batch_size=batch_size, seed=seed,
                                        threads=threads, lr=pre_config.lr / 2, warmup_steps=10,
-                                       change_weight=change_weight, self_condition=self_condition)
+                                       change_weight=change_weight, self_condition=self_condition,
+                                       action_totals=action_totals)
 
         # -- pre-training: token sequences with their captions
         t0 = time.perf_counter()
@@ -293,7 +297,8 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
         if run.pending(STAGE_POSTTRAIN, [pkey]) or not (post_folder / checkpoints.WEIGHTS_FILE).exists():
             texts = _episode_texts(run, folders, scenario)
             futures = [encode_episode.submit(folder, tok_folder, tok_id, size, [camera] if camera else None,
-                                             model_config.action_dim, texts[folder], root) for folder in folders]
+                                             model_config.action_dim, texts[folder], root, post_config.action_totals)
+                       for folder in folders]
             episode_sequences = [s for f in futures for s in f.result()]
             post_history, params = posttrain(pre_folder, episode_sequences, post_config, post_folder,
                                              {"checkpoint_id": post_id, "pretrained_id": pre_id, "tokenizer_id": tok_id,

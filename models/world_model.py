@@ -62,6 +62,9 @@ class WorldModelConfig(BaseModel):
     action_scale: tuple[float, ...] | None = Field(
         None, description="action_dim divisors applied before the action encoder (post-training sets each to the "
                           "root mean square of that action value over its episodes); None: 1")
+    action_totals: int = Field(0, ge=0, description="leading action values also given as running totals since the "
+                                                    "episode's start (ee_delta: 3, the commanded tcp's offset); "
+                                                    "tasks/world/data.align_actions")
     copy_path: bool = Field(False, description="add a learned gain to the logit of each position's current code "
                                                "(starting at log K: copy-last-frame at even odds)")
 
@@ -178,14 +181,17 @@ class WorldModel(nn.Module):
         if isinstance(module, nn.Linear) and module.bias is not None:
             nn.init.zeros_(module.bias)
 
-    def add_action_conditioning(self, action_scale: Sequence[float] | None = None) -> "WorldModel":
+    def add_action_conditioning(self, action_scale: Sequence[float] | None = None,
+                                action_totals: int = 0) -> "WorldModel":
         """Add a zero-initialised action encoder in place (post-training); outputs are unchanged
         until it trains. The config becomes ``action_conditioned=True`` with ``action_scale``
-        (``action_dim`` divisors, see ``action_scale``; None: 1)."""
+        (``action_dim`` divisors, see ``action_scale``; None: 1) and ``action_totals`` (how its
+        actions are laid out: ``tasks/world/data.align_actions``)."""
         if self.action_encoder is None:
             scale = None if action_scale is None else tuple(float(v) for v in action_scale)
             self.config = WorldModelConfig.model_validate(
-                {**self.config.model_dump(), "action_conditioned": True, "action_scale": scale})
+                {**self.config.model_dump(), "action_conditioned": True, "action_scale": scale,
+                 "action_totals": action_totals})
             self.action_encoder = ActionEncoder(self.config)
         return self
 
@@ -297,9 +303,9 @@ def next_frame_loss(logits: torch.Tensor, codes: torch.Tensor, change_weight: fl
     return (losses * weights).sum() / weights.sum()
 
 
-def post_trainable(model: WorldModel, action_scale: Sequence[float] | None = None) -> WorldModel:
+def post_trainable(model: WorldModel, action_scale: Sequence[float] | None = None, action_totals: int = 0) -> WorldModel:
     """A copy of a pre-trained model with the zero-initialised action encoder added."""
-    return copy.deepcopy(model).add_action_conditioning(action_scale)
+    return copy.deepcopy(model).add_action_conditioning(action_scale, action_totals)
 
 
 def action_scale(actions: Sequence, action_dim: int, temporal_compression: int,

@@ -96,7 +96,7 @@ def world_model_rollout(checkpoint: Path | str, request: WorldModelRequest, root
         step_time = np.arange(len(request.actions)) / request.control_hz
         frame_time = np.arange(1 + t * latent) / request.fps
         rows = align_actions(step_time, np.asarray(request.actions, np.float64), frame_time, t, 1 + latent,
-                             model.config.action_dim)
+                             model.config.action_dim, model.config.action_totals)
         actions = torch.from_numpy(rows)[None]
     codes = model.rollout(context, latent, text=[request.text] if request.text else None, actions=actions)
     frames = decode(tokenizer, torch.cat([context, codes], dim=1)[0])[:request.frames]

@@ -107,7 +107,7 @@ def video_fps(path: Path) -> float:
 
 
 def align_actions(step_time: np.ndarray, action: np.ndarray, frame_time: np.ndarray, temporal_compression: int,
-                  latent_frames: int, action_dim: int) -> np.ndarray:
+                  latent_frames: int, action_dim: int, totals: int = 0) -> np.ndarray:
     """Actions per latent step: ``(latent_frames - 1) x (temporal_compression x action_dim)`` float32.
 
     Control step k holds ``action[k]`` from ``step_time[k]``; it leads into the first frame
@@ -116,12 +116,21 @@ def align_actions(step_time: np.ndarray, action: np.ndarray, frame_time: np.ndar
     covers video frames ``t j + 1 .. t j + t``, so row j has t slots, slot s the mean action
     (zero-padded to ``action_dim``) of the steps leading into frame ``t j + 1 + s``; a slot
     no step leads into stays zero, and steps leading past the last covered frame are dropped.
+
+    With ``totals`` = n, each slot also holds, after the action's own values, the running sum
+    of its first n values over every step up to that frame since the episode's first: for
+    ``ee_delta`` actions (n = 3), the commanded tcp's offset from where it started. A model
+    whose window holds a few latent frames cannot add up deltas from before it; the robot
+    knows where it sent its hand (world models of robots condition on proprioception too).
     """
     t = temporal_compression
     if action.ndim != 2 or action.shape[0] != step_time.shape[0]:
         raise ValueError(f"action {action.shape} does not match {step_time.shape[0]} step times")
-    if action.shape[1] > action_dim:
-        raise ValueError(f"actions have {action.shape[1]} values per step; the model takes at most {action_dim}")
+    if not 0 <= totals <= action.shape[1]:
+        raise ValueError(f"totals {totals}: the actions have {action.shape[1]} values per step")
+    if action.shape[1] + totals > action_dim:
+        raise ValueError(f"actions have {action.shape[1]} values per step (+ {totals} totals); "
+                         f"the model takes at most {action_dim}")
     out = np.zeros((max(latent_frames - 1, 0), t, action_dim), np.float64)
     counts = np.zeros(out.shape[:2], np.int64)
     frame = np.searchsorted(frame_time, step_time + TIME_TOLERANCE_S, side="right")
@@ -131,6 +140,11 @@ def align_actions(step_time: np.ndarray, action: np.ndarray, frame_time: np.ndar
             out[j, s, :action.shape[1]] += action[k]
             counts[j, s] += 1
     out /= np.maximum(counts, 1)[..., None]
+    if totals:
+        running = np.vstack([np.zeros((1, totals)), np.cumsum(action[:, :totals], axis=0)])
+        slot_frame = 1 + np.arange(out.shape[0] * t)
+        through = np.searchsorted(frame, slot_frame, side="right")  # steps leading into frames <= f
+        out[:, :, action.shape[1]:action.shape[1] + totals] = running[through].reshape(out.shape[0], t, totals)
     return out.reshape(out.shape[0], t * action_dim).astype(np.float32)
 
 
@@ -177,7 +191,8 @@ def _cached_codes(video: Path, tokenizer: VideoTokenizer, tokenizer_id: str, siz
 
 
 def load_episode(directory: Path, camera: str, tokenizer: VideoTokenizer, size: int, action_dim: int = 8,
-                 text: str | None = None, tokenizer_id: str = "", cache_root: Path | None = None) -> CodeSequence:
+                 text: str | None = None, tokenizer_id: str = "", cache_root: Path | None = None,
+                 totals: int = 0) -> CodeSequence:
     """One camera of one simulated episode as a ``CodeSequence`` with aligned actions.
 
     Its ``codes[:c]`` and ``actions[None, :c - 1 + n]`` are what ``WorldModel.rollout`` takes to
@@ -186,7 +201,7 @@ def load_episode(directory: Path, camera: str, tokenizer: VideoTokenizer, size: 
     ``size``: frames are centre-cropped and resized to ``size x size`` before encoding: use the
     size of the tokenizer's token shards (the train flow writes it as ``size`` into the world
     model checkpoint's config.json, beside ``tokenizer``, the tokenizer's folder).
-    ``action_dim``: the world model's ``config.action_dim``. ``text`` defaults to the episode's
+    ``action_dim``, ``totals``: the world model's ``config.action_dim`` and ``config.action_totals``. ``text`` defaults to the episode's
     task kind and stressor kinds from meta.json (pass ``episode_text(instruction, kinds)`` when
     the manifest is at hand). With ``cache_root`` (the data root) and a ``tokenizer_id``, codes
     are kept under ``EPISODE_CODES_FILE``, keyed by the tokenizer, the video's sha256 and size.
@@ -202,7 +217,7 @@ def load_episode(directory: Path, camera: str, tokenizer: VideoTokenizer, size: 
     step_time, action = read_steps(directory)
     t = tokenizer.config.temporal_compression
     frames = 1 + (codes.shape[0] - 1) * t
-    actions = align_actions(step_time, action, np.arange(frames) / fps, t, codes.shape[0], action_dim)
+    actions = align_actions(step_time, action, np.arange(frames) / fps, t, codes.shape[0], action_dim, totals)
     if text is None:
         text = episode_text(meta.get("task", ""), meta.get("stressors", {}))
     info = {"episode": str(directory), "camera": camera, "index": meta.get("index"), "seed": meta.get("seed"),
@@ -213,10 +228,11 @@ def load_episode(directory: Path, camera: str, tokenizer: VideoTokenizer, size: 
 
 def load_episodes(directories: Sequence[Path], tokenizer: VideoTokenizer, size: int, cameras: Sequence[str] | None = None,
                   action_dim: int = 8, text: str | None = None, tokenizer_id: str = "",
-                  cache_root: Path | None = None) -> list[CodeSequence]:
+                  cache_root: Path | None = None, totals: int = 0) -> list[CodeSequence]:
     """``load_episode`` for every camera (or the ``cameras`` named) of every episode folder."""
     out = []
     for directory in directories:
         for camera in cameras or read_meta(directory).get("cameras", []):
-            out.append(load_episode(directory, camera, tokenizer, size, action_dim, text, tokenizer_id, cache_root))
+            out.append(load_episode(directory, camera, tokenizer, size, action_dim, text, tokenizer_id, cache_root,
+                                    totals))
     return out

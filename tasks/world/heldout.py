@@ -112,7 +112,7 @@ def decode(tokenizer: VideoTokenizer, codes: np.ndarray | torch.Tensor) -> np.nd
 
 
 def prepare(key: str, truth: Truth, camera: PinholeCamera, tokenizer: VideoTokenizer, size: int, action_dim: int,
-            text: str, min_fit_iou: float = 0.5) -> Prepared:
+            text: str, min_fit_iou: float = 0.5, totals: int = 0) -> Prepared:
     """Encode and reconstruct the episode, align its actions, fit both colour models.
 
     A colour model whose fit IoU on its own episode is below `min_fit_iou` is dropped: the
@@ -126,7 +126,8 @@ def prepare(key: str, truth: Truth, camera: PinholeCamera, tokenizer: VideoToken
     frames = square(truth.frames[:n], size)
     recon = decode(tokenizer, codes)
     cover = None if truth.masks is None else physics.coverage(truth.masks[:n], size)
-    actions = align_actions(truth.step_time, truth.action, np.arange(n) / truth.fps, t, codes.shape[0], action_dim)
+    actions = align_actions(truth.step_time, truth.action, np.arange(n) / truth.fps, t, codes.shape[0], action_dim,
+                            totals)
 
     fits = {}
 

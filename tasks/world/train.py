@@ -35,6 +35,8 @@ class WorldTrainConfig(BaseModel):
     change_weight: float = Field(0.0, ge=0, description="extra loss weight on codes that change from the frame before")
     self_condition: float = Field(0.0, ge=0, le=1, description="share of windows whose input frames after the first "
                                   "are the model's own predictions (see ``own_inputs``)")
+    action_totals: int = Field(0, ge=0, le=8, description="post-training: leading action values also given as running "
+                               "totals (``tasks.world.data.align_actions``; the episodes must be loaded with them)")
     seed: int = 0
     threads: int = Field(2, ge=1)
     log_every: int = Field(10, ge=1)
@@ -211,5 +213,6 @@ def posttrain(pretrained: WorldModel, episodes: Sequence[CodeSequence], config: 
     each action value divided by its root mean square over these episodes (``action_scale``)."""
     torch.manual_seed(config.seed)
     c = pretrained.config
-    model = post_trainable(pretrained, action_scale([e.actions for e in episodes], c.action_dim, c.temporal_compression))
+    model = post_trainable(pretrained, action_scale([e.actions for e in episodes], c.action_dim, c.temporal_compression),
+                           config.action_totals)
     return model, train_world_model(model, episodes, config, on_log)

@@ -1,5 +1,6 @@
 """The train flow end to end: simulate -> curate -> tokenize -> pre-train on tokens -> post-train on episodes."""
 
+import re
 from pathlib import Path
 
 from typer.testing import CliRunner
@@ -95,6 +96,17 @@ def test_train_pretrains_posttrains_records_lineage_and_skips_on_rerun(prefect_h
     assert runs == [("completed",), ("completed",)]
     camera = runner.invoke(app, ["train", str(manifest), "--camera", "nope"])  # refused before pre-training
     assert camera.exit_code == 2 and "--camera 'nope': the episodes of" in camera.output
+
+    # --action-totals is a post-training option: the pre-trained checkpoint is reused, a new
+    # post-trained one records the layout its actions were aligned with.
+    totals = runner.invoke(app, ["train", str(manifest), "--steps", "3", "--post-steps", "3", "--action-totals", "3"])
+    assert totals.exit_code == 0, totals.output
+    said = " ".join(totals.output.split())
+    new_post = re.search(r"post-trained (\w+) \(trained\)", said).group(1)
+    assert f"pre-trained {pre} (already trained)" in said and new_post != post
+    folder = next((data_root / "checkpoints").rglob(new_post))
+    assert checkpoints.load_checkpoint(folder).config.action_totals == 3
+    assert checkpoints.load_checkpoint(Path(result["posttrain_checkpoint"])).config.action_totals == 0
 
 
 def test_cli_refuses_bad_train_arguments(data_root, tmp_path):

@@ -54,6 +54,24 @@ def test_actions_reach_the_model(checkpoint):
     assert np.array_equal(still[0], moved[0]) and not np.array_equal(still[1:], moved[1:])
 
 
+def test_rollout_aligns_actions_with_the_checkpoints_totals(checkpoint, tmp_path, monkeypatch):
+    """A model post-trained with action totals gets them in its rollout rows too."""
+    from tasks.world.checkpoints import load_checkpoint
+    from tasks.world.data import align_actions
+
+    model = load_checkpoint(checkpoint / "wm")
+    model.config = model.config.model_copy(update={"action_totals": 3})
+    save_checkpoint(model, tmp_path / "wm", {"tokenizer": str(checkpoint / "tok"), "size": SIZE})
+    seen = []
+    real = WorldModel.rollout
+    monkeypatch.setattr(WorldModel, "rollout", lambda self, *a, **kw: seen.append(kw["actions"]) or real(self, *a, **kw))
+    request = _request()
+    world_model_rollout(tmp_path / "wm", request, root=checkpoint)
+    frame_time = np.arange(1 + 4 * 3) / request.fps
+    want = align_actions(np.arange(40) / 50, request.actions, frame_time, 4, 4, 8, totals=3)
+    assert np.array_equal(seen[0][0].numpy(), want) and want[..., 5::8].any()
+
+
 def test_not_a_world_model_checkpoint(tmp_path):
     with pytest.raises(WorldModelUnavailable, match="not a world-model checkpoint"):
         world_model_rollout(tmp_path, _request())

@@ -124,3 +124,19 @@ def test_load_token_sequences_with_captions(tmp_path):
     tokens.write_token_shard([continuous], target)
     with pytest.raises(ValueError, match="discrete"):
         data.load_token_sequences([target], tmp_path)
+
+
+def test_align_actions_totals_hold_the_running_sum_since_the_start():
+    """With totals, each slot also holds the running sum of the first values over every step up to
+    its frame (the commanded hand's offset), also where no step leads into the slot itself."""
+    k = np.arange(3)
+    action = np.stack([k + 1.0, 10 * (k + 1.0)], axis=1)  # steps at 0, 0.1, 0.2 s lead into frames 1, 4, 7
+    out = align_actions(k / 10.0, action, np.arange(9) / 30.0, 4, 3, 4, totals=1).reshape(2, 4, 4)
+    assert out[..., 2].tolist() == [[1, 1, 1, 3], [3, 3, 6, 6]]
+    assert out[..., :2].reshape(-1, 2).tolist() == align_actions(
+        k / 10.0, action, np.arange(9) / 30.0, 4, 3, 4).reshape(2, 4, 4)[..., :2].reshape(-1, 2).tolist()
+    assert not out[..., 3].any()
+    with pytest.raises(ValueError, match=r"\+ 2 totals"):
+        align_actions(k / 10.0, action, np.arange(9) / 30.0, 4, 3, 3, totals=2)
+    with pytest.raises(ValueError, match="totals 3"):
+        align_actions(k / 10.0, action, np.arange(9) / 30.0, 4, 3, 8, totals=3)

@@ -179,3 +179,12 @@ def test_posttraining_learns_millimetre_actions():
     unscaled = post_trainable(pre)
     train_world_model(unscaled, train, config)
     assert _accuracy(unscaled, test) < 0.7
+
+
+def test_posttraining_records_action_totals():
+    """The layout the episodes were aligned with travels in the checkpoint's config, so a rollout
+    aligns its actions the same way."""
+    config = WorldTrainConfig(steps=1, batch_size=2, threads=1, action_totals=3)
+    post, _ = posttrain(_model(), _pushed(2, 4, 0), config)
+    assert post.config.action_totals == 3 and post.config.action_conditioned
+    assert posttrain(_model(), _pushed(2, 4, 0), config.model_copy(update={"action_totals": 0}))[0].config.action_totals == 0
