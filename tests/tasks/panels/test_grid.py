@@ -81,3 +81,16 @@ def test_panels_with_different_contracts_are_refused_naming_what_differs():
     assert "camera layout: overhead vs front_left, front_right, wrist" in text
     assert "task: 'push' vs 'bin_pick'" in text and "evaluation target: 'push_to_goal' vs 'lift_clear'" in text
     assert "horizon: 5.0 vs 6.0" in text
+
+
+def test_the_shipped_held_out_grid_is_the_default_grid_on_other_seeds():
+    """manifests/grids/push_heldout.yaml: the default push grid, on seeds no `worldline simulate`
+    run of a shipped push manifest starts from."""
+    from tasks.panels.grid import load_grid
+
+    grid = load_grid(MANIFESTS / "grids" / "push_heldout.yaml")
+    closeup = load(MANIFESTS / "push_closeup.yaml")
+    assert grid.cells == default_grid(closeup).cells and grid.episodes == 4
+    spec, _ = expand(closeup, grid)
+    assert spec.variants[0].seeds == (10200, 10201, 10202, 10203)
+    assert all(load(p).seed + 2000 < 10200 for p in MANIFESTS.glob("*.yaml") if load(p).task.kind == "push")
