@@ -447,6 +447,8 @@ def train(
     action_totals: int = typer.Option(0, min=0, max=8, help="post-training: the first N action values also enter as "
                                       "running totals since the episode's start (3 for ee_delta actions: the "
                                       "commanded hand's offset, which a few-frame window cannot add up)"),
+    also: Optional[list[str]] = typer.Option(None, "--also", help="another manifest (YAML, episode folder or hash) "
+                                             "whose episodes join post-training; repeatable"),
 ) -> None:
     """Pre-train a world model on token shards, post-train it with actions on episodes (Prefect flow `train`)."""
     from models.world_model import PRESETS
@@ -461,8 +463,13 @@ def train(
     from flows.train import train as train_flow
     from tasks.world.data import read_meta
 
+    for extra in also or []:
+        if Path(extra).suffix in (".yaml", ".yml"):
+            _load_or_exit(Path(extra))
     try:
         folders, _ = episode_folders(manifest, Settings().data_root.resolve())
+        for extra in also or []:
+            episode_folders(extra, Settings().data_root.resolve())
     except FileNotFoundError as exc:
         _fail(str(exc))
     cameras = read_meta(folders[0]).get("cameras", [])
@@ -471,7 +478,7 @@ def train(
     try:
         result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, batch_size=batch, window=window,
                             camera=camera, patch=patch, change_weight=change_weight,
-                            self_condition=self_condition, action_totals=action_totals)
+                            self_condition=self_condition, action_totals=action_totals, also=also)
     except (FileNotFoundError, ValueError) as exc:
         _fail(str(exc))
     done = {True: "trained", False: "already trained"}

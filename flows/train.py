@@ -225,7 +225,7 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
           window: Annotated[int, Field(ge=2, le=64)] | None = None,
           camera: str | None = None, seed: Seed = 0, patch: Annotated[int, Field(ge=1, le=16)] | None = None,
           change_weight: Weight = 0.0, self_condition: Share = 0.0,
-          action_totals: Annotated[int, Field(ge=0, le=8)] = 0) -> dict:
+          action_totals: Annotated[int, Field(ge=0, le=8)] = 0, also: list[str] | None = None) -> dict:
     """Pre-train world model ``preset_name`` on ``tokenizer``'s token shards (or ``token_shards``),
     then post-train it with actions on the simulated episodes of ``manifest`` (a YAML, an
     episode folder or a manifest hash), every camera or only ``camera``. ``patch``: codes per
@@ -233,10 +233,14 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
     extra loss weight on codes that change from one latent frame to the next. ``self_condition``:
     share of post-training windows that read the model's own rollout instead of the true frames
     (``tasks.world.train.own_inputs``). ``action_totals``: the first n action values also enter
-    as running totals since the episode's start (3 for ``ee_delta``: where the hand was sent)."""
+    as running totals since the episode's start (3 for ``ee_delta``: where the hand was sent).
+    ``also``: more manifests (or episode folders, or hashes) whose episodes join post-training,
+    each with its own manifest's text (e.g. the same scene at a noisier controller, so the model
+    sees pushes that fail)."""
     settings = Settings()
     root = settings.data_root.resolve()
-    folders, scenario = episode_folders(manifest, root)
+    sources = [episode_folders(m, root) for m in [manifest, *(also or [])]]
+    folders, scenario = [f for found, _ in sources for f in found], sources[0][1]
     threads = min(2, torch.get_num_threads())
     with recorded_run("train", settings, scenario, source_uri=manifest if scenario is not None else None,
                       params={"manifest": manifest, "tokenizer": tokenizer, "token_shards": token_shards,
@@ -244,7 +248,7 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                               "posttrain_steps": posttrain_steps, "batch_size": batch_size, "window": window,
                               "camera": camera, "seed": seed, "patch": patch,
                               "change_weight": change_weight, "self_condition": self_condition,
-                              "action_totals": action_totals}) as run:
+                              "action_totals": action_totals, "also": also or []}) as run:
         tok_folder, tok_id, tok_config = tokenizer_checkpoint(run, tokenizer)
         shards, sequences, (grid_h, grid_w), size = token_inputs(run, tok_id, token_shards)
         hashes = {mh for *_, mh in shards if mh}
@@ -295,7 +299,7 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
         post_history: list[dict] = []
         episode_sequences: list[data.CodeSequence] = []
         if run.pending(STAGE_POSTTRAIN, [pkey]) or not (post_folder / checkpoints.WEIGHTS_FILE).exists():
-            texts = _episode_texts(run, folders, scenario)
+            texts = {f: t for found, source in sources for f, t in _episode_texts(run, found, source).items()}
             futures = [encode_episode.submit(folder, tok_folder, tok_id, size, [camera] if camera else None,
                                              model_config.action_dim, texts[folder], root, post_config.action_totals)
                        for folder in folders]

@@ -108,6 +108,23 @@ def test_train_pretrains_posttrains_records_lineage_and_skips_on_rerun(prefect_h
     assert checkpoints.load_checkpoint(folder).config.action_totals == 3
     assert checkpoints.load_checkpoint(Path(result["posttrain_checkpoint"])).config.action_totals == 0
 
+    # --also: a second manifest's episodes join post-training (a new post-trained checkpoint on
+    # both sets of episodes, with lineage edges to all of them); the pre-trained one is reused.
+    other = tmp_path / "other.yaml"
+    other.write_text(manifest.read_text().replace("\nseed: 11", "\nseed: 111"))
+    other_mh = simulate(str(other), 1)["manifest_hash"]
+    both = runner.invoke(app, ["train", str(manifest), "--also", str(other), "--steps", "3", "--post-steps", "3"])
+    assert both.exit_code == 0, both.output
+    said = " ".join(both.output.split())
+    assert f"pre-trained {pre} (already trained)" in said and "on 3 episodes" in said
+    both_post = re.search(r"post-trained (\w+) \(trained\)", said).group(1)
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, rows = wh.query("SELECT a.manifest_hash, count(*) FROM edges e JOIN artifacts a ON a.artifact_id = e.parent_id "
+                           "WHERE e.child_id = $c AND a.kind = 'episode' GROUP BY 1 ORDER BY 2", {"c": both_post})
+    assert sorted(rows) == sorted([(mh, 2), (other_mh, 1)])
+    missing = runner.invoke(app, ["train", str(manifest), "--also", "0" * 64])
+    assert missing.exit_code == 2 and "no simulated episodes" in missing.output
+
 
 def test_cli_refuses_bad_train_arguments(data_root, tmp_path):
     bad = runner.invoke(app, ["train", str(MANIFESTS / "conveyor_push.yaml"), "--preset", "huge"])
