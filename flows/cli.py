@@ -475,6 +475,13 @@ def train(
     cameras = read_meta(folders[0]).get("cameras", [])
     if camera is not None and camera not in cameras:
         _fail(f"--camera {camera!r}: the episodes of {manifest} have cameras {', '.join(cameras)}")
+    if action_totals:
+        from tasks.world.data import read_steps
+
+        width, room = read_steps(folders[0])[1].shape[1], PRESETS[preset].action_dim
+        if action_totals > width or width + action_totals > room:
+            _fail(f"--action-totals {action_totals}: the episodes of {manifest} have {width} action values a step "
+                  f"and preset {preset} takes {room} values in all")
     try:
         result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, batch_size=batch, window=window,
                             camera=camera, patch=patch, change_weight=change_weight,

@@ -107,6 +107,8 @@ def test_train_pretrains_posttrains_records_lineage_and_skips_on_rerun(prefect_h
     folder = next((data_root / "checkpoints").rglob(new_post))
     assert checkpoints.load_checkpoint(folder).config.action_totals == 3
     assert checkpoints.load_checkpoint(Path(result["posttrain_checkpoint"])).config.action_totals == 0
+    wide = runner.invoke(app, ["train", str(manifest), "--action-totals", "4"])  # 5 values + 4 > 8
+    assert wide.exit_code == 2 and "--action-totals 4: the episodes of" in " ".join(wide.output.split())
 
     # --also: a second manifest's episodes join post-training (a new post-trained checkpoint on
     # both sets of episodes, with lineage edges to all of them); the pre-trained one is reused.
