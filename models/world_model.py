@@ -303,7 +303,8 @@ def next_frame_loss(logits: torch.Tensor, codes: torch.Tensor, change_weight: fl
     return (losses * weights).sum() / weights.sum()
 
 
-def post_trainable(model: WorldModel, action_scale: Sequence[float] | None = None, action_totals: int = 0) -> WorldModel:
+def post_trainable(model: WorldModel, action_scale: Sequence[float] | None = None,
+                   action_totals: int = 0) -> WorldModel:
     """A copy of a pre-trained model with the zero-initialised action encoder added."""
     return copy.deepcopy(model).add_action_conditioning(action_scale, action_totals)
 

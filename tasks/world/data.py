@@ -201,7 +201,8 @@ def load_episode(directory: Path, camera: str, tokenizer: VideoTokenizer, size: 
     ``size``: frames are centre-cropped and resized to ``size x size`` before encoding: use the
     size of the tokenizer's token shards (the train flow writes it as ``size`` into the world
     model checkpoint's config.json, beside ``tokenizer``, the tokenizer's folder).
-    ``action_dim``, ``totals``: the world model's ``config.action_dim`` and ``config.action_totals``. ``text`` defaults to the episode's
+    ``action_dim``, ``totals``: the world model's ``config.action_dim`` and ``config.action_totals``.
+    ``text`` defaults to the episode's
     task kind and stressor kinds from meta.json (pass ``episode_text(instruction, kinds)`` when
     the manifest is at hand). With ``cache_root`` (the data root) and a ``tokenizer_id``, codes
     are kept under ``EPISODE_CODES_FILE``, keyed by the tokenizer, the video's sha256 and size.

@@ -213,6 +213,6 @@ def posttrain(pretrained: WorldModel, episodes: Sequence[CodeSequence], config: 
     each action value divided by its root mean square over these episodes (``action_scale``)."""
     torch.manual_seed(config.seed)
     c = pretrained.config
-    model = post_trainable(pretrained, action_scale([e.actions for e in episodes], c.action_dim, c.temporal_compression),
-                           config.action_totals)
+    scale = action_scale([e.actions for e in episodes], c.action_dim, c.temporal_compression)
+    model = post_trainable(pretrained, scale, config.action_totals)
     return model, train_world_model(model, episodes, config, on_log)

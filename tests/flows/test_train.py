@@ -121,7 +121,8 @@ def test_train_pretrains_posttrains_records_lineage_and_skips_on_rerun(prefect_h
     assert f"pre-trained {pre} (already trained)" in said and "on 3 episodes" in said
     both_post = re.search(r"post-trained (\w+) \(trained\)", said).group(1)
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
-        _, rows = wh.query("SELECT a.manifest_hash, count(*) FROM edges e JOIN artifacts a ON a.artifact_id = e.parent_id "
+        _, rows = wh.query("SELECT a.manifest_hash, count(*) FROM edges e "
+                           "JOIN artifacts a ON a.artifact_id = e.parent_id "
                            "WHERE e.child_id = $c AND a.kind = 'episode' GROUP BY 1 ORDER BY 2", {"c": both_post})
     assert sorted(rows) == sorted([(mh, 2), (other_mh, 1)])
     missing = runner.invoke(app, ["train", str(manifest), "--also", "0" * 64])

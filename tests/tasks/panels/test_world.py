@@ -64,7 +64,8 @@ def test_rollout_aligns_actions_with_the_checkpoints_totals(checkpoint, tmp_path
     save_checkpoint(model, tmp_path / "wm", {"tokenizer": str(checkpoint / "tok"), "size": SIZE})
     seen = []
     real = WorldModel.rollout
-    monkeypatch.setattr(WorldModel, "rollout", lambda self, *a, **kw: seen.append(kw["actions"]) or real(self, *a, **kw))
+    monkeypatch.setattr(WorldModel, "rollout",
+                        lambda self, *a, **kw: seen.append(kw["actions"]) or real(self, *a, **kw))
     request = _request()
     world_model_rollout(tmp_path / "wm", request, root=checkpoint)
     frame_time = np.arange(1 + 4 * 3) / request.fps

@@ -187,4 +187,5 @@ def test_posttraining_records_action_totals():
     config = WorldTrainConfig(steps=1, batch_size=2, threads=1, action_totals=3)
     post, _ = posttrain(_model(), _pushed(2, 4, 0), config)
     assert post.config.action_totals == 3 and post.config.action_conditioned
-    assert posttrain(_model(), _pushed(2, 4, 0), config.model_copy(update={"action_totals": 0}))[0].config.action_totals == 0
+    plain, _ = posttrain(_model(), _pushed(2, 4, 0), config.model_copy(update={"action_totals": 0}))
+    assert plain.config.action_totals == 0
