@@ -559,7 +559,7 @@ def evaluate_policies_cmd(
     _grid_or_exit(parent, grid, episodes)
     from tasks.panels.contract import PanelContractError
 
-    from flows.evaluate import DEFAULT_POLICIES, plan
+    from flows.evaluate import DEFAULT_POLICIES, agreement_line, plan
     from flows.evaluate import evaluate as evaluate_flow
 
     specs, loaded = _policies_or_exit(policy or [])
@@ -582,6 +582,8 @@ def evaluate_policies_cmd(
                 title="success rate per stressor cell")
     out.print("Spearman (simulator vs): " + ", ".join(f"{k} {'-' if v is None else f'{v:.2f}'}"
                                                        for k, v in result["spearman"].items()), highlight=False)
+    for column, a in result["agreement"].items():
+        out.print(agreement_line(f"{column} vs simulator, per episode", a), highlight=False)
 
 
 @app.command("train-policy")

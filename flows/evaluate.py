@@ -33,7 +33,7 @@ from tasks.panels.grid import expand
 from tasks.panels.world import WorldModelRequest, world_model_rollout
 from tasks.policy.base import Policy
 from tasks.policy.bc import BCPolicy
-from tasks.policy.evaluate import EpisodeOutcome, Rollout, run_episode, spearman, success_table
+from tasks.policy.evaluate import EpisodeOutcome, Rollout, agreement, run_episode, spearman, success_table
 from tasks.policy.specs import load_policy
 from tasks.world.checkpoints import WEIGHTS_FILE
 
@@ -189,9 +189,10 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
                 for panel, name, _, table in results for r in table]
         text = markdown_table(("panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model"), rows)
         corr = "; ".join(f"{k} {_fmt(v)}" for k, v in summary["spearman"].items())
+        agree = "\n".join(agreement_line(f"{k} vs simulator", a) for k, a in summary["agreement"].items())
         publish("evaluate", f"{len(loaded)} policies on {len(planned)} panel(s)",
-                text + f"\n\nSpearman across policies: {corr}", "success per stressor cell and policy")
-        print(text + f"\nSpearman: {corr}")
+                text + f"\n\nSpearman across policies: {corr}\n\n{agree}", "success per stressor cell and policy")
+        print(text + f"\nSpearman: {corr}\n{agree}")
         return {"evaluations": [{"panel": p, "policy": n, "evaluation_id": e, "table": t} for p, n, e, t in results],
                 "contract_hash": planned[0][2].contract_hash, **summary}
 
@@ -208,18 +209,36 @@ def compare_verdicts(run: RunContext, results: list[tuple[str, str, str, list[di
         "sim_vs_world_cells": spearman([r["sim"] for r in cells], [r["world"] for r in cells]),
         "sim_vs_detector_cells": spearman([r["sim"] for r in cells], [r["detector"] for r in cells]),
     }
+    episodes = [o for _, _, e, _ in results for o in json.loads(
+        paths.resolve(root, paths.EVALUATION_FILE, evaluation_id=e).read_text())["episodes"]]
+    agree = {column: agreement(episodes, column) for column in ("detector", "world")}
     ids = sorted(e for _, _, e, _ in results)
     comparison_id = stable_id("evaluation_comparison", *ids)
     target = paths.resolve(root, paths.EVALUATION_FILE, evaluation_id=comparison_id)
-    body = {"format": "worldline-evaluation-comparison/1", "evaluations": ids, "spearman": corr,
+    body = {"format": "worldline-evaluation-comparison/1", "evaluations": ids, "spearman": corr, "agreement": agree,
             "overall": [{"panel": p, "policy": n, **next(r for r in t if r["cell"] == "all")} for p, n, _, t in results]}
     write_json(target, body)
     batch = LineageBatch(artifacts=[ArtifactRecord(
         artifact_id=comparison_id, kind="evaluation", uri=target.relative_to(root).as_posix(),
         sha256=sha256_file(str(target)), bytes=target.stat().st_size, manifest_hash=run.manifest_hash,
-        attrs={"role": "comparison", "spearman": corr})],
+        attrs={"role": "comparison", "spearman": corr, "agreement": agree})],
         edges=[EdgeRecord(parent_id=e, child_id=comparison_id, relation="compared") for e in ids],
         metrics=[MetricRecord(subject_id=comparison_id, name=f"spearman_{k}", value=v, manifest_hash=run.manifest_hash)
                  for k, v in corr.items() if v is not None])
+    batch.metrics += [MetricRecord(subject_id=comparison_id, name=f"agreement_{column}_{k}", value=v,
+                                   manifest_hash=run.manifest_hash)
+                      for column, a in agree.items() if a["decided"]
+                      for k, v in (("decided", a["decided"] / a["episodes"]), ("rate", a["agree"] / a["decided"]),
+                                   ("balanced", a["balanced"])) if v is not None]
     run.write(batch)
-    return {"comparison_id": comparison_id, "spearman": corr}
+    return {"comparison_id": comparison_id, "spearman": corr, "agreement": agree}
+
+
+def agreement_line(name: str, a: dict) -> str:
+    """One line: how a judge's verdicts match the simulator's, episode by episode."""
+    if not a["decided"]:
+        return f"{name}: no episode decided"
+    balanced = "-" if a["balanced"] is None else f"{a['balanced']:.2f}"
+    return (f"{name}: decided {a['decided']} of {a['episodes']}, agree on {a['agree']}; on the simulator's "
+            f"successes {a['successes_agree']}/{a['successes']}, on its failures {a['failures_agree']}/{a['failures']} "
+            f"(balanced {balanced})")

@@ -82,6 +82,22 @@ def success_table(outcomes: Sequence[EpisodeOutcome], cells: Sequence[str]) -> l
     return rows
 
 
+def agreement(outcomes: Sequence[dict], column: str) -> dict:
+    """How often ``column``'s verdict ('detector' or 'world') matches the simulator's, episode by
+    episode: decided, agree, and agreement on the simulator's successes and on its failures
+    apart, since a judge that always says success agrees as often as the policies succeed.
+    ``balanced``: the mean of the two (None unless both kinds were decided)."""
+    decided = [o for o in outcomes if o.get(column) is not None]
+    hits = [o for o in decided if o["success"]]
+    misses = [o for o in decided if not o["success"]]
+    on_hits = sum(bool(o[column]) for o in hits)
+    on_misses = sum(not o[column] for o in misses)
+    balanced = (on_hits / len(hits) + on_misses / len(misses)) / 2 if hits and misses else None
+    return {"episodes": len(outcomes), "decided": len(decided), "agree": on_hits + on_misses,
+            "successes": len(hits), "successes_agree": on_hits, "failures": len(misses),
+            "failures_agree": on_misses, "balanced": balanced}
+
+
 def spearman(a: Sequence[float | None], b: Sequence[float | None]) -> float | None:
     """Spearman's rank correlation over the pairs where both are known (ties share ranks);
     None with fewer than 2 pairs or when either side is constant (it is undefined then)."""

@@ -57,6 +57,9 @@ def test_policies_on_a_panel_table_and_lineage(prefect_harness, data_root, tmp_p
     assert scripted["nominal"]["detector"] is not None  # the frame detector judged the render
     assert set(result["spearman"]) == {"sim_vs_world", "sim_vs_detector", "sim_vs_world_cells", "sim_vs_detector_cells"}
     assert result["spearman"]["sim_vs_world"] is None
+    detector, world = result["agreement"]["detector"], result["agreement"]["world"]
+    assert detector["episodes"] == world["episodes"] == 6 and world["decided"] == 0
+    assert 0 < detector["decided"] <= 6 and detector["agree"] <= detector["decided"]
 
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         _, evals = wh.query("SELECT artifact_id, attrs->>'role' FROM artifacts WHERE kind = 'evaluation'")
@@ -64,6 +67,7 @@ def test_policies_on_a_panel_table_and_lineage(prefect_harness, data_root, tmp_p
                             "WHERE a.kind = 'evaluation' GROUP BY relation ORDER BY relation")
         _, metrics = wh.query("SELECT name, value FROM metrics WHERE subject_id = $e ORDER BY name",
                               {"e": next(e["evaluation_id"] for e in result["evaluations"] if e["policy"] == "scripted")})
+        _, compared = wh.query("SELECT name FROM metrics WHERE subject_id = $c", {"c": result["comparison_id"]})
         _, ancestry = wh.query("SELECT DISTINCT ancestor_kind FROM ancestry WHERE descendant_id = $c",
                                {"c": result["comparison_id"]})
         counts = wh.counts()
@@ -71,6 +75,8 @@ def test_policies_on_a_panel_table_and_lineage(prefect_harness, data_root, tmp_p
     assert dict(edges) == {"compared": 3, "evaluated_on": 3, "policy": 1}
     assert dict(metrics)["sim_success_rate"] == 1.0 and dict(metrics)["sim_success_rate/dim"] == 1.0
     assert {"evaluation", "panel", "checkpoint", "episode", "manifest"} <= {k for (k,) in ancestry}
+    assert {"agreement_detector_decided", "agreement_detector_rate"} <= {n for (n,) in compared}
+    assert not any(n.startswith("agreement_world") for (n,) in compared)
 
     # The shipped failure audit: the failed cells (below the manifest's pass bar), then what lies behind.
     bar = load(manifest).evaluation.min_success_rate
