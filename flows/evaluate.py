@@ -69,7 +69,7 @@ def world_verdict(world_model: str, variant: ScenarioManifest, camera: str, done
     request = WorldModelRequest(camera=camera, context=done.context, actions=done.actions,
                                 control_hz=done.control_hz, fps=cam.fps, frames=n_frames, text=world_text(variant))
     generated = world_model_rollout(world_model, request, root)
-    verdict = judge_frames(generated, cam, variant.evaluation, done.package_start)
+    verdict = judge_frames(generated, cam, variant.evaluation, done.package_start, reference=done.context[0])
     return verdict.success, verdict.reason
 
 

@@ -2,11 +2,19 @@
 
 The simulator judges from its state; a world model only has pixels. `judge_frames` finds
 what the evaluation target is about in a world-mounted camera's frames and decides it the
-way the simulator would. Shipped: ``push_to_goal`` (the green goal disc in the first frame,
-the package tracked by its colours from where it starts, both placed on the table through
-the camera's pinhole model, distance against the goal tolerance; a shaking camera is undone
-by phase correlation of the first and last frames, dim light by one gain for the clip).
-Other targets return an undecided verdict (success None) rather than a guess.
+way the simulator would. Shipped: ``push_to_goal``: the green goal disc in the first frame
+(the real one, for generated frames), and success when the disc is covered at the end, the
+package resting on it; on rendered frames the package is also tracked by its colours from
+where it starts, placed on the table through the camera's pinhole model, and a track ending
+outside the tolerance vetoes a partly covered disc (a near miss). A shaking camera is undone by
+phase correlation, dim light by one gain for the clip. Other targets return an undecided
+verdict (success None) rather than a guess.
+
+Version 4 (the cover), on push_closeup's held-out panel (manifests/grids/push_heldout.yaml, 8
+seeds, scripted at noise 0.3, 0.8 and 1.0, and a BC policy): 216 of 224 renders agree with the
+simulator (version 3: 213); on the tokenizer's reconstructions of the 168 scripted episodes it
+decides 144 and agrees on 138 (version 3: 111 of 138); the dim cell is undecided there, since
+the tokenizer loses the disc. The earlier figures below are version 3's.
 
 Measured against the simulator on the push manifest's overhead camera (128 x 128): 25 of 28
 episodes agree at controller noise 0.5 and 0.8 (seeds 100-115 and 11-22); the misses are
@@ -29,7 +37,10 @@ from schemas.manifest import Camera, Evaluation
 # Part of every evaluation's key: a changed detector re-judges. 2: sizes and heights from the
 # camera's pose (side views), not from an overhead camera's height. 3: a lost package is
 # searched for in a widening window (decoded frames), the largest blob of its colours.
-DETECTOR_VERSION = 3
+# 4: the verdict is whether the goal disc is covered at the end (the package resting on it),
+# not where the colour track ends; generated frames are judged against the real first frame's disc.
+DETECTOR_VERSION = 4
+COVERED = 0.85  # below this share of the goal disc still visible at the end, it is covered
 TABLE_TOP = 0.10  # tasks/sim/scene.py: the push table's top (m)
 PACKAGE_HALF = (0.04, 0.03, 0.03)  # tasks/sim/scene.py: the package's half sizes (m)
 
@@ -104,17 +115,23 @@ def seen_height(camera: Camera, point: np.ndarray) -> float:
     return TABLE_TOP + PACKAGE_HALF[2] * (1 + top / max(top + side, 1e-9))
 
 
-def _goal_disc(frame: np.ndarray, camera: Camera, tolerance: float) -> np.ndarray | None:
-    """Centre (column, row) of the goal disc: the saturated green blob closest in area to the
-    disc's projected size. None when no blob fits (dark frames, occluded goal)."""
+def _green(frame: np.ndarray) -> np.ndarray:
+    """Saturated green pixels. Relative thresholds: dim light darkens and desaturates the disc
+    (about 64, 100, 70 at 80 lux)."""
     rgb = frame.astype(np.float32)
     r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
-    # Relative thresholds: dim light darkens and desaturates the disc (about 64, 100, 70 at 80 lux).
-    green = (g - np.maximum(r, b) > 0.25 * g + 4) & (g > 0.3 * np.percentile(rgb, 99))
+    return (g - np.maximum(r, b) > 0.25 * g + 4) & (g > 0.3 * np.percentile(rgb, 99))
+
+
+def _goal_mask(frame: np.ndarray, camera: Camera, tolerance: float) -> np.ndarray | None:
+    """Pixels of the goal disc: the saturated green blob closest in area to the disc's
+    projected size. None when no blob fits (dark frames, occluded goal)."""
+    green = _green(frame)
     if not green.any():
         return None
+    g = frame[..., 1].astype(np.float32)
     expected = disc_area_px(camera, tolerance)
-    best, centre = math.log(2.5), None
+    best, found = math.log(2.5), None
     # A green table (appearance jitter) joins the disc into one big blob; the unlit disc is
     # the brightest green, so also try only the brightest green pixels.
     for mask in (green, green & (g >= 0.8 * g[green].max())):
@@ -123,10 +140,33 @@ def _goal_disc(frame: np.ndarray, camera: Camera, tolerance: float) -> np.ndarra
         ratio = np.abs(np.log(np.maximum(areas, 1) / expected))
         k = int(np.argmin(ratio))
         if ratio[k] < best:
-            best = ratio[k]
-            row, col = ndimage.center_of_mass(mask, labels, k + 1)
-            centre = np.array([col, row])
-    return centre
+            best, found = ratio[k], labels == k + 1
+    return found
+
+
+def _goal_disc(frame: np.ndarray, camera: Camera, tolerance: float) -> np.ndarray | None:
+    """Centre (column, row) of the goal disc, or None."""
+    mask = _goal_mask(frame, camera, tolerance)
+    if mask is None:
+        return None
+    rows, cols = np.nonzero(mask)
+    return np.array([cols.mean(), rows.mean()])
+
+
+def _visible(frames: np.ndarray, mask: np.ndarray, last: int = 5) -> tuple[float, float]:
+    """(share of the goal disc's pixels green in frames[0], the largest share still green in
+    any of the last ``last`` frames, each moved by its shift from frames[0]). The largest:
+    something passing in front of the goal (a forklift) covers it for a few frames only; a
+    package resting on it covers it in all of them."""
+    rows, cols = np.nonzero(mask)
+    h, w = mask.shape
+    shares = []
+    for frame in frames[-last:]:
+        dx, dy = image_shift(frames[0], frame)
+        r = np.clip(np.round(rows + dy).astype(int), 0, h - 1)
+        c = np.clip(np.round(cols + dx).astype(int), 0, w - 1)
+        shares.append(float(_green(frame)[r, c].mean()))
+    return float(_green(frames[0])[rows, cols].mean()), max(shares)
 
 
 def _exposed(frames: np.ndarray, level: float = 220.0) -> np.ndarray:
@@ -195,34 +235,51 @@ def _track(frames: np.ndarray, start: np.ndarray, half_px: float, palette: np.nd
     return at, seen
 
 
-def judge_push(frames: np.ndarray, camera: Camera, evaluation: Evaluation, package_start: np.ndarray) -> Verdict:
+def judge_push(frames: np.ndarray, camera: Camera, evaluation: Evaluation, package_start: np.ndarray,
+               reference: np.ndarray | None = None) -> Verdict:
     """frames: F x H x W x 3 uint8 from ``camera`` (world-mounted); package_start: the
-    package's xyz at the first frame (known: the world model starts from the real scene)."""
+    package's xyz at the first frame (known: the world model starts from the real scene);
+    reference: the real first frame that generated ``frames`` start from, where the goal is
+    looked for (a tokenizer's reconstruction of a dim frame can lose the disc); by default
+    frames[0]."""
     if camera.mount != "world":
         return Verdict(None, f"camera {camera.name} is not world-mounted")
     tol = evaluation.goal_tolerance_m
-    goal_px = _goal_disc(frames[0], camera, tol)
-    if goal_px is None:
+    goal = _goal_mask(frames[0] if reference is None else reference, camera, tol)
+    if goal is None:
         return Verdict(None, "goal marker not found in the first frame")
+    first, last = _visible(frames, goal)  # in the frames' own light, as the disc was found
     frames = _exposed(frames)
+    if first < 0.5:  # a tokenizer that cannot draw this light loses the disc in its reconstruction
+        return Verdict(None, f"goal marker not drawn in the frames ({first:.0%} of it green in the first)")
+    uncovered = last / first
     top = seen_height(camera, np.array([package_start[0], package_start[1], TABLE_TOP + PACKAGE_HALF[2]]))
     start = np.array([package_start[0], package_start[1], top])
     start_px = project(camera, start[None])[0]
     half_px = min(PACKAGE_HALF[:2]) * focal_px(camera) / depth(camera, start)
     shift = image_shift(frames[0], frames[-1])
     end_px, seen = _track(frames, start_px, half_px, _palette(frames, start_px, half_px, shift))
-    if seen < max(1, len(frames) // 4):
-        return Verdict(None, f"package seen in only {seen} of {len(frames)} frames")
-    goal = on_plane(camera, goal_px, TABLE_TOP)
-    package = on_plane(camera, end_px - shift, top)  # back into the first frame's picture
-    gap = float(np.linalg.norm(package[:2] - goal[:2]))
-    if gap <= tol:
-        return Verdict(True, f"package at goal in the frames ({gap:.3f} m)", gap)
-    return Verdict(False, f"package {gap:.3f} m from goal in the frames (tolerance {tol} m)", gap)
+    gap, tracked = None, "package not tracked"
+    if seen >= max(1, len(frames) // 4):
+        rows, cols = np.nonzero(goal)
+        goal_xyz = on_plane(camera, np.array([cols.mean(), rows.mean()]), TABLE_TOP)
+        package = on_plane(camera, end_px - shift, top)  # back into the first frame's picture
+        gap = float(np.linalg.norm(package[:2] - goal_xyz[:2]))
+        tracked = f"package tracked {gap:.3f} m from it"
+    # On rendered frames a track that ends outside the tolerance vetoes a disc only partly
+    # covered (a near miss hides some of it too). Generated frames are judged by the disc
+    # alone: a world model's package drifts in colour and its track is lost or misplaced.
+    near_miss = reference is None and gap is not None and gap > tol and uncovered >= 0.5
+    if uncovered < COVERED and not near_miss:
+        return Verdict(True, f"goal marker covered at the end ({uncovered:.0%} of it visible); {tracked}", gap)
+    return Verdict(False, f"goal marker uncovered at the end ({uncovered:.0%} of it visible, tolerance "
+                          f"{tol} m); {tracked}", gap)
 
 
-def judge_frames(frames: np.ndarray, camera: Camera, evaluation: Evaluation, package_start: np.ndarray) -> Verdict:
-    """The detector for the evaluation's target; undecided where none is built."""
+def judge_frames(frames: np.ndarray, camera: Camera, evaluation: Evaluation, package_start: np.ndarray,
+                 reference: np.ndarray | None = None) -> Verdict:
+    """The detector for the evaluation's target; undecided where none is built. ``reference``:
+    the real first frame, when ``frames`` are generated from it (see `judge_push`)."""
     if evaluation.target == "push_to_goal":
-        return judge_push(frames, camera, evaluation, package_start)
+        return judge_push(frames, camera, evaluation, package_start, reference)
     return Verdict(None, f"no frame detector for target {evaluation.target!r} yet")

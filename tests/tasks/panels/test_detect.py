@@ -88,3 +88,23 @@ def test_a_package_lost_for_a_while_is_found_again():
     truth = float(np.linalg.norm(ep.object_pose[-1, 0, :2] - build_scene(noisy, 23).goal[:2]))
     assert verdict.success, verdict.reason
     assert abs(verdict.distance_m - truth) < 0.015
+
+
+@pytest.mark.parametrize("seed", [26, 23], ids=["miss", "hit"])
+def test_generated_frames_are_judged_by_the_goal_disc_of_the_real_first_frame(seed):
+    """A world model's frames: the goal is looked for in the real first frame (the reference),
+    and the verdict is whether the disc is covered at the end, whatever colour the package
+    has become; a first frame that does not draw the disc is undecided."""
+    closeup = load(MANIFESTS / "push_closeup.yaml")
+    noisy = closeup.model_copy(update={"task": closeup.task.model_copy(update={"controller_noise": 0.8})})
+    ep = rollout(noisy, seed)
+    frames, start = ep.frames["side"], ep.object_pose[0, 0, :3]
+    drifted = frames.copy()
+    drifted[..., 0] = np.clip(drifted[..., 0].astype(int) + 40, 0, 255)  # every colour shifted towards red
+    verdict = judge_frames(drifted, noisy.cameras[0], noisy.evaluation, start, reference=frames[0])
+    assert verdict.success == ep.success, (verdict.reason, ep.reason)
+    assert ("covered" if ep.success else "uncovered") in verdict.reason
+    # A tokenizer that never saw dim light reconstructs a murk without the green disc.
+    murk = np.repeat((frames.mean(axis=-1, keepdims=True) * 0.3).astype(np.uint8), 3, axis=-1)
+    undrawn = judge_frames(murk, noisy.cameras[0], noisy.evaluation, start, reference=frames[0])
+    assert undrawn.success is None and "not drawn" in undrawn.reason
