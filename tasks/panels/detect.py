@@ -144,15 +144,6 @@ def _goal_mask(frame: np.ndarray, camera: Camera, tolerance: float) -> np.ndarra
     return found
 
 
-def _goal_disc(frame: np.ndarray, camera: Camera, tolerance: float) -> np.ndarray | None:
-    """Centre (column, row) of the goal disc, or None."""
-    mask = _goal_mask(frame, camera, tolerance)
-    if mask is None:
-        return None
-    rows, cols = np.nonzero(mask)
-    return np.array([cols.mean(), rows.mean()])
-
-
 def _visible(frames: np.ndarray, mask: np.ndarray, last: int = 5) -> tuple[float, float]:
     """(share of the goal disc's pixels green in frames[0], the largest share still green in
     any of the last ``last`` frames, each moved by its shift from frames[0]). The largest:
@@ -270,10 +261,12 @@ def judge_push(frames: np.ndarray, camera: Camera, evaluation: Evaluation, packa
     # covered (a near miss hides some of it too). Generated frames are judged by the disc
     # alone: a world model's package drifts in colour and its track is lost or misplaced.
     near_miss = reference is None and gap is not None and gap > tol and uncovered >= 0.5
-    if uncovered < COVERED and not near_miss:
-        return Verdict(True, f"goal marker covered at the end ({uncovered:.0%} of it visible); {tracked}", gap)
-    return Verdict(False, f"goal marker uncovered at the end ({uncovered:.0%} of it visible, tolerance "
-                          f"{tol} m); {tracked}", gap)
+    if uncovered >= COVERED:
+        return Verdict(False, f"goal marker uncovered at the end ({uncovered:.0%} of it visible); {tracked}", gap)
+    if near_miss:
+        return Verdict(False, f"goal marker partly covered at the end ({uncovered:.0%} of it visible), but "
+                              f"{tracked} (tolerance {tol} m)", gap)
+    return Verdict(True, f"goal marker covered at the end ({uncovered:.0%} of it visible); {tracked}", gap)
 
 
 def judge_frames(frames: np.ndarray, camera: Camera, evaluation: Evaluation, package_start: np.ndarray,
