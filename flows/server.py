@@ -333,6 +333,11 @@ def serve(port: int | None = None, pool: str = POOL, deploy: bool = True) -> Non
     """
     main = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGTERM, _interrupt) if main else None
+    # A background job of a script starts with SIGINT ignored, and Python keeps it ignored:
+    # without this, `kill -INT` (what stops the stack) would never reach it.
+    ignored = main and signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+    if ignored:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     stack = LocalStack(Settings(), port=port, pool=pool, deploy=deploy, ui=True)
     try:
         stack.start()
@@ -348,3 +353,5 @@ def serve(port: int | None = None, pool: str = POOL, deploy: bool = True) -> Non
         stack.stop()
         if main:
             signal.signal(signal.SIGTERM, previous)
+        if ignored:
+            signal.signal(signal.SIGINT, signal.SIG_IGN)

@@ -250,10 +250,14 @@ def test_children_stop_on_sigint_even_when_the_parent_ignores_it(tmp_path):
 
 
 @pytest.mark.slow
-def test_serve_runs_until_ctrl_c_then_leaves_nothing_behind(tmp_path):
+@pytest.mark.parametrize("sigint", ["default", "ignored"])
+def test_serve_runs_until_ctrl_c_then_leaves_nothing_behind(tmp_path, sigint):
+    """'ignored': started as a script's background job is, SIGINT ignored from the start."""
     env = {**os.environ, "WORLDLINE_DATA_ROOT": str(tmp_path)}
+    ignore = (lambda: signal.signal(signal.SIGINT, signal.SIG_IGN)) if sigint == "ignored" else None
     proc = subprocess.Popen([sys.executable, "-c", "from flows.server import serve; serve(deploy=False)"],
-                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=ignore)
     lines = []
     try:
         for line in proc.stdout:  # ends when serve exits, so a failed start cannot hang here
