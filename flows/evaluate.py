@@ -157,6 +157,7 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
               "compare": compare or [], "world_model": world_model, "detector": detector}
     with recorded_run("evaluate", settings, parent, source_uri=manifest, params=params) as run:
         results = []  # (panel name, policy, evaluation id, table)
+        episodes = []  # every evaluation's episodes, for per-episode agreement
         for path, panel_parent, spec, variants in planned:
             panel_id = made[path]["panel_id"]
             for policy in loaded:
@@ -184,7 +185,8 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
                     run.write(LineageBatch(stage_runs=[stage]).extend(batch))
                 body = json.loads(result_file.read_text())
                 results.append((spec.name, policy.name, evaluation_id, body["table"]))
-        summary = compare_verdicts(run, results, root)
+                episodes += body["episodes"]
+        summary = compare_verdicts(run, results, episodes, root)
         rows = [(panel, name, r["cell"], r["episodes"], _fmt(r["sim"]), _fmt(r["detector"]), _fmt(r["world"]))
                 for panel, name, _, table in results for r in table]
         text = markdown_table(("panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model"), rows)
@@ -197,7 +199,8 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
                 "contract_hash": planned[0][2].contract_hash, **summary}
 
 
-def compare_verdicts(run: RunContext, results: list[tuple[str, str, str, list[dict]]], root: Path) -> dict:
+def compare_verdicts(run: RunContext, results: list[tuple[str, str, str, list[dict]]], episodes: list[dict],
+                     root: Path) -> dict:
     """Rank correlation of the simulator's verdicts with the frame detector's and the world
     model's, across policies (overall rates) and across policy x cell rates; one 'evaluation'
     artifact (role comparison) over the policy evaluations."""
@@ -209,8 +212,6 @@ def compare_verdicts(run: RunContext, results: list[tuple[str, str, str, list[di
         "sim_vs_world_cells": spearman([r["sim"] for r in cells], [r["world"] for r in cells]),
         "sim_vs_detector_cells": spearman([r["sim"] for r in cells], [r["detector"] for r in cells]),
     }
-    episodes = [o for _, _, e, _ in results for o in json.loads(
-        paths.resolve(root, paths.EVALUATION_FILE, evaluation_id=e).read_text())["episodes"]]
     agree = {column: agreement(episodes, column) for column in ("detector", "world")}
     ids = sorted(e for _, _, e, _ in results)
     comparison_id = stable_id("evaluation_comparison", *ids)
