@@ -677,6 +677,44 @@ def loop_cmd(
 evaluate_app.command("policies")(evaluate_policies_cmd)
 
 
+@app.command()
+def verify(
+    manifest: Optional[str] = typer.Option(None, help="only this manifest's artifacts (hash, or its first 12+ hex digits)"),
+    fmt: str = typer.Option("table", "--format", help="table | csv | json"),
+) -> None:
+    """Check every file lineage recorded (or one manifest's) against its sha256: list the
+    missing, the changed, and paths two rows claim with different sha256s; exit 5 when any
+    differ. Reads the warehouse only (tasks/integrity.py `audit`: manifests are not files)."""
+    from schemas.errors import EXIT_ENVIRONMENT
+    from tasks import integrity
+    from warehouse import integrity as claims
+    from warehouse.store import Warehouse, WarehouseError
+
+    if fmt not in ("table", "csv", "json"):
+        _fail(f"--format {fmt!r}: one of table, csv, json")
+    settings = Settings()
+    try:
+        with Warehouse(settings.warehouse_path, read_only=True) as wh:
+            if manifest is not None:
+                manifest = _full_id(wh, "manifests", "manifest_hash", manifest, "manifest")
+                if not wh.query("SELECT 1 FROM manifests WHERE manifest_hash = $m", {"m": manifest})[1]:
+                    _fail(f"--manifest {manifest}: no such manifest in lineage")
+            rows = [integrity.Recorded(*r) for r in claims.files(wh, manifest)]
+    except WarehouseError as exc:
+        _fail(str(exc))
+    findings, checked, hashed = integrity.audit(rows, settings.data_root)
+    short = (lambda v: v and v[:12]) if fmt == "table" else (lambda v: v)  # noqa: E731
+    _print_rows(["problem", "kind", "artifact_id", "uri", "lineage_sha256", "file_sha256"],
+                [(f.problem, f.kind, short(f.artifact_id), f.uri, short(f.lineage_sha256), short(f.file_sha256))
+                 for f in findings], fmt, title=f"files that differ from lineage ({len(findings)})")
+    counts = ", ".join(f"{sum(f.problem == p for f in findings)} {p}" for p in integrity.PROBLEMS)
+    line = (f"{checked} artifacts checked, {hashed} files hashed: "
+            + (f"{len(findings)} differ from lineage ({counts})" if findings else "all match lineage"))
+    (out if fmt == "table" else err).print(line, highlight=False, markup=False, soft_wrap=True)  # csv, json parseable
+    if findings:
+        raise typer.Exit(EXIT_ENVIRONMENT)
+
+
 class _InputErrorsInOneLine(logging.Filter):
     """Prefect logs a failed flow or task run's exception with its traceback; from the CLI an
     input error (FileNotFoundError, ValueError: a missing file, a refused manifest or contract)
