@@ -14,6 +14,7 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
+from flows.lookup import verified_artifact, verified_policy, verified_world_model
 from flows.panels import panels as panels_flow
 from flows.panels import primary_camera, resolve_grid, world_text
 from flows.params import PanelEpisodes
@@ -35,7 +36,6 @@ from tasks.policy.base import Policy
 from tasks.policy.bc import BCPolicy
 from tasks.policy.evaluate import EpisodeOutcome, Rollout, agreement, run_episode, spearman, success_table
 from tasks.policy.specs import load_policy
-from tasks.world.checkpoints import WEIGHTS_FILE
 
 STAGE = "evaluate_policy"
 DEFAULT_POLICIES = ("scripted", "scripted:0.8")
@@ -92,16 +92,11 @@ def evaluate_one(run: RunContext, spec: PanelSpec, variants: list[ScenarioManife
 
 
 def world_checkpoints(run: RunContext, world_model: str | None) -> list[str]:
-    """Lineage ids of the world-model checkpoint a folder holds (found by its weights' bytes), so
-    an evaluation traces back through it to its token shards, clips and raw videos."""
-    if not world_model:
-        return []
-    weights = Path(world_model) / WEIGHTS_FILE
-    if not weights.is_file():
-        return []
-    _, rows = run.warehouse.query("SELECT artifact_id FROM artifacts WHERE kind = 'checkpoint' AND sha256 = $sha "
-                                  "ORDER BY artifact_id", {"sha": sha256_file(str(weights))})
-    return [r[0] for r in rows]
+    """Lineage ids of the world-model checkpoint a folder holds, its weights (and its tokenizer's)
+    checked against lineage (TamperedArtifact), so an evaluation traces back through it to its
+    token shards, clips and raw videos; none for a checkpoint lineage does not know."""
+    found = verified_world_model(run.warehouse, run.settings.data_root, world_model)
+    return [found] if found else []
 
 
 def evaluation_lineage(evaluation_id: str, result_file: Path, root: Path, body: dict, panel_id: str,
@@ -156,6 +151,9 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
     params = {"manifest": manifest, "grid": grid, "episodes": episodes, "policies": [p.name for p in loaded],
               "compare": compare or [], "world_model": world_model, "detector": detector}
     with recorded_run("evaluate", settings, parent, source_uri=manifest, params=params) as run:
+        for policy in loaded:  # a learned policy's weights, as read, must be the ones lineage recorded
+            verified_policy(run.warehouse, root, policy)
+        world_ids = world_checkpoints(run, world_model)  # checked once, before any rollout
         results = []  # (panel name, policy, evaluation id, table)
         episodes = []  # every evaluation's episodes, for per-episode agreement
         for path, panel_parent, spec, variants in planned:
@@ -181,8 +179,10 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
                     batch = evaluation_lineage(evaluation_id, result_file, root, body, panel_id, policy,
                                                stage.stage_run_id, made[path]["manifest_hash"])
                     batch.edges += [EdgeRecord(parent_id=c, child_id=evaluation_id, relation="world_model")
-                                    for c in world_checkpoints(run, world_model)]
+                                    for c in world_ids]
                     run.write(LineageBatch(stage_runs=[stage]).extend(batch))
+                else:  # done before: its table is read back, so it must be the file lineage recorded
+                    verified_artifact(run.warehouse, result_file, evaluation_id)
                 body = json.loads(result_file.read_text())
                 results.append((spec.name, policy.name, evaluation_id, body["table"]))
                 episodes += body["episodes"]

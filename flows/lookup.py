@@ -5,13 +5,18 @@ Each lookup takes an open warehouse (None before any flow has written one): a fl
 run's, the CLI a read-only one opened before the flow starts, so that a bad name is one line
 rather than a failed flow run. Bad names raise FileNotFoundError, or CheckpointError (a
 ValueError) for a folder whose config is unreadable or incomplete.
+
+Every checkpoint found here has had its weights checked against the sha256 lineage recorded
+for them (``verified_file``): a changed file raises TamperedArtifact (issue 26).
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from tasks.checkpoint_files import CONFIG_FILE, CheckpointError
+from tasks import integrity
+from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError
+from warehouse import integrity as claims
 from warehouse.store import Warehouse
 
 POSTTRAINED_WORLD_MODEL = "attrs->>'model' = 'world_model' AND attrs->>'phase' = 'posttrain'"
@@ -28,18 +33,88 @@ def is_hex_id(text: str) -> bool:
     return len(text) >= 12 and all(ch in "0123456789abcdef" for ch in text)
 
 
-def checkpoint_by_id(warehouse: Warehouse | None, prefix: str, condition: str, what: str) -> tuple[str, str]:
+def verified_file(warehouse: Warehouse | None, root: Path, path: Path, kind: str, what: str,
+                  hint: str | None = None, digest: str | None = None) -> tuple[str | None, str | None, str]:
+    """(artifact id, manifest hash, sha256) of a file a stage is about to read, hashed once
+    (or ``digest``, when the caller already has it) and checked against lineage: the row at
+    its uri must have its bytes (else TamperedArtifact); a copy elsewhere of a ``kind``
+    artifact is that artifact. A file lineage has never seen raises InvalidInput with ``hint``,
+    or with ``hint`` None is an external input: (None, None, sha256), and nothing is recorded."""
+    digest, uri = digest or integrity.file_sha256(path), integrity.uri_of(path, root)
+    rows = claims.claims(warehouse, uri, digest, kind) if warehouse is not None else []
+    found = integrity.match(path, uri, digest, kind, [integrity.Recorded(*r) for r in rows])
+    if found is not None:
+        return found.artifact_id, found.manifest_hash, digest
+    if hint is not None:
+        raise integrity.unknown(path, digest, what, hint)
+    return None, None, digest
+
+
+def verified_checkpoint(warehouse: Warehouse | None, root: Path, folder: Path) -> tuple[str | None, str | None]:
+    """(artifact id or None, weights sha256 or None) of a checkpoint folder: its weights checked
+    against lineage when lineage knows them (TamperedArtifact otherwise); a folder lineage does
+    not know is an external checkpoint (evaluating one is allowed; it is recorded by whoever
+    links it). A folder without weights is left to the loader's one-line error."""
+    weights = Path(folder) / WEIGHTS_FILE
+    if not weights.is_file():
+        return None, None
+    artifact_id, _, digest = verified_file(warehouse, root, weights, "checkpoint", "checkpoint")
+    return artifact_id, digest
+
+
+def verified_artifact(warehouse: Warehouse | None, path: Path, artifact_id: str) -> None:
+    """A file this flow wrote in an earlier run and now reads back instead of redoing the work,
+    checked against the sha256 lineage recorded for ``artifact_id`` (TamperedArtifact)."""
+    row = claims.recorded(warehouse, [artifact_id]).get(artifact_id) if warehouse is not None else None
+    if row is not None and Path(path).is_file():
+        integrity.check(path, integrity.Recorded(*row))
+
+
+def verified_world_model(warehouse: Warehouse | None, root: Path, folder: Path | str | None) -> str | None:
+    """The lineage id (None: external, or no folder) of a world-model checkpoint folder about to
+    roll out, its weights and its tokenizer's (``tokenizer`` in its config) checked against
+    lineage. An unreadable config is left to the loader's one-line error."""
+    from tasks.world.checkpoints import read_config
+
+    if not folder:
+        return None
+    artifact_id, _ = verified_checkpoint(warehouse, root, Path(folder))
+    try:
+        tokenizer = read_config(Path(folder)).get("tokenizer")
+    except CheckpointError:
+        return artifact_id
+    if isinstance(tokenizer, str):
+        verified_checkpoint(warehouse, root, integrity.path_of(tokenizer, Path(root).resolve()))
+    return artifact_id
+
+
+def verified_policy(warehouse: Warehouse | None, root: Path, policy) -> None:
+    """A loaded behaviour-cloning policy's weights (the sha256 it computed when it read them)
+    checked against lineage; other policies have no file."""
+    meta, source = getattr(policy, "meta", None) or {}, getattr(policy, "source", None)
+    if source and meta.get("weights_sha256"):
+        verified_file(warehouse, root, Path(source) / WEIGHTS_FILE, "checkpoint", "policy checkpoint",
+                      digest=meta["weights_sha256"])
+
+
+def checkpoint_by_id(warehouse: Warehouse | None, prefix: str, condition: str, what: str,
+                     root: Path | None = None) -> tuple[str, str]:
     """(artifact id, weights uri) of the one checkpoint matching the SQL ``condition`` whose id
     starts with ``prefix``; FileNotFoundError naming ``what`` when there is none or several
-    (or no lineage yet: ``warehouse`` None)."""
+    (or no lineage yet: ``warehouse`` None). With ``root``, its weights (when there) are
+    checked against the sha256 lineage recorded (TamperedArtifact)."""
     if warehouse is None:
         raise FileNotFoundError(f"{what} {prefix}: no lineage warehouse yet to look the id up in")
-    _, rows = warehouse.query(f"SELECT artifact_id, uri FROM artifacts WHERE kind = 'checkpoint' AND {condition} "
+    _, rows = warehouse.query(f"SELECT artifact_id, uri, sha256 FROM artifacts WHERE kind = 'checkpoint' AND {condition} "
                               "AND artifact_id LIKE $prefix || '%' ORDER BY artifact_id LIMIT 2", {"prefix": prefix})
     if len(rows) != 1:
         raise FileNotFoundError(f"{what} {prefix}: {'no' if not rows else 'more than one'} "
                                 f"{what} checkpoint with that id in lineage")
-    return rows[0]
+    artifact_id, uri, sha256 = rows[0]
+    weights = integrity.path_of(uri, root) if root is not None else None
+    if weights is not None and sha256 and weights.is_file():
+        integrity.check(weights, integrity.Recorded(artifact_id, "checkpoint", uri, sha256))
+    return artifact_id, uri
 
 
 def checkpoint_folder(warehouse: Warehouse | None, root: Path, name: str, condition: str, what: str) -> Path:
@@ -49,10 +124,12 @@ def checkpoint_folder(warehouse: Warehouse | None, root: Path, name: str, condit
         folder = Path(name).resolve()
         if not (folder / CONFIG_FILE).is_file():
             raise FileNotFoundError(f"{name}: not a {what} checkpoint folder (no {CONFIG_FILE})")
+        verified_checkpoint(warehouse, root, folder)
         return folder
     if not is_hex_id(name):
         raise FileNotFoundError(f"{name}: no such checkpoint folder, and not a checkpoint id")
-    return (Path(root).resolve() / checkpoint_by_id(warehouse, name, condition, what)[1]).parent
+    root = Path(root).resolve()
+    return integrity.path_of(checkpoint_by_id(warehouse, name, condition, what, root)[1], root).parent
 
 
 def world_model_folder(warehouse: Warehouse | None, root: Path, name: str | None) -> Path:
@@ -68,7 +145,8 @@ def world_model_folder(warehouse: Warehouse | None, root: Path, name: str | None
                                   ) if warehouse is not None else ([], [])
         if not rows:
             raise FileNotFoundError("no post-trained world model in lineage: run `worldline train` first")
-        folder = (Path(root).resolve() / rows[0][0]).parent
+        folder = integrity.path_of(rows[0][0], Path(root).resolve()).parent
+        verified_checkpoint(warehouse, root, folder)
     config = checkpoints.read_config(folder)
     if missing := [key for key in ("tokenizer", "size") if key not in config]:
         raise CheckpointError(f"{folder / CONFIG_FILE}: not a post-trained world model's config "

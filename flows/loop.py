@@ -18,6 +18,7 @@ from pydantic import Field
 
 from flows.curate import curate
 from flows.evaluate import evaluate
+from flows.lookup import verified_policy
 from flows.panels import resolve_grid
 from flows.params import Episodes, PanelEpisodes, Steps
 from flows.policy import train_policy
@@ -180,6 +181,7 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
         old = load_policy(policy)
         if not isinstance(old, bc.BCPolicy):
             raise ValueError(f"policy {policy!r}: the loop post-trains behaviour-cloning policies (bc:PATH)")
+        verified_policy(run.warehouse, root, old)  # the weights it fine-tunes, as lineage recorded them
         old_id = old.meta.get("checkpoint_id") or stable_id("checkpoint", "bc", old.meta["weights_sha256"])
 
         before = evaluate(manifest, grid, episodes, [policy], detector=False)["evaluations"][0]

@@ -12,6 +12,7 @@ import pyarrow.parquet as pq
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
+from flows.lookup import verified_world_model
 from flows.params import PanelEpisodes
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, progress, publish, write_json
@@ -150,6 +151,7 @@ def panels(manifest: str, grid: str | None = None, episodes: PanelEpisodes | Non
     params = {"manifest": manifest, "grid": grid, "episodes": episodes, "world_model": world_model,
               "camera": cam, "guard": guard}
     with recorded_run("panels", settings, parent, source_uri=manifest, params=params) as run:
+        verified_world_model(run.warehouse, root, world_model)  # before any rollout reads it
         batch = LineageBatch()
         for pv, variant in zip(spec.variants, variants):
             batch.extend(manifests.lineage(variant))

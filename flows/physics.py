@@ -21,7 +21,7 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 from pydantic import Field
 
-from flows.lookup import world_model_folder
+from flows.lookup import verified_artifact, verified_file, world_model_folder
 from flows.params import PanelEpisodes, Seed
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, publish
@@ -43,18 +43,19 @@ HELDOUT_FIRST_SEED = 10_000
 
 
 def _artifact_id(run: RunContext, path: Path, kind: str, attrs: dict) -> str:
-    """The lineage id of a file by its bytes; one lineage has never seen is recorded now."""
+    """The lineage id of a checkpoint file, checked against the sha256 lineage recorded for it
+    (TamperedArtifact); one lineage has never seen is recorded now as an external input (a
+    checkpoint brought from elsewhere may be evaluated; its row says it has no lineage here)."""
     root = run.settings.data_root.resolve()
-    digest = sha256_file(str(path))
-    _, rows = run.warehouse.query("SELECT artifact_id FROM artifacts WHERE kind = $kind AND sha256 = $sha "
-                                  "ORDER BY artifact_id LIMIT 1", {"kind": kind, "sha": digest})
-    if rows:
-        return rows[0][0]
+    artifact_id, _, digest = verified_file(run.warehouse, root, path, kind, kind)
+    if artifact_id is not None:
+        return artifact_id
     uri = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
     artifact_id = stable_id(kind, uri, digest)
     run.write(LineageBatch(artifacts=[ArtifactRecord(artifact_id=artifact_id, kind=kind, uri=uri, sha256=digest,
                                                      bytes=path.stat().st_size,
-                                                     attrs={**attrs, "registered_by": "evaluate-physics"})]))
+                                                     attrs={**attrs, "registered_by": "evaluate-physics",
+                                                            "external": True})]))
     return artifact_id
 
 
@@ -284,6 +285,7 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
         evaluation_id = stable_id("evaluation", key)
         result_path = paths.resolve(root, paths.PHYSICS_RESULT, evaluation_id=evaluation_id)
         if not run.pending(STAGE, [key]) and result_path.is_file():
+            verified_artifact(run.warehouse, result_path, evaluation_id)  # read back: must be lineage's bytes
             result = json.loads(result_path.read_text())
             print(f"evaluation {evaluation_id} done before: {result_path}")
             return result["summary"]
