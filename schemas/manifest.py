@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import PurePosixPath
 from typing import Annotated, Literal, Union
 
@@ -64,11 +65,44 @@ class Embodiment(Frozen):
     _mjcf = field_validator("mjcf")(classmethod(lambda cls, v: check_relative_path(v)))
 
 
+# Bodies the scene adds itself (tasks/sim: the built-in arm, the mobile base, an MJCF arm
+# attached as robot_*/gripper_*, the forklift, the distractors): an object whose body took one
+# of these names would be refused by MuJoCo only when the scene compiles (issue 26). Reserved
+# whatever stressors the manifest lists, because a panel or loop cell adds distractors to it.
+SCENE_BODIES = re.compile(r"world|base|ee|forklift|finger_(left|right)|arm_link\d+|distractor_\d+|(robot|gripper)_.*")
+
+
+def object_body_name(name: str, index: int) -> str:
+    """The body a task object becomes in the scene: lower case, every other character '_', at
+    most 24 characters ('object' if none), and '_<index>' after all but the first."""
+    clean = "".join(ch if ch.isalnum() else "_" for ch in name.lower())[:24] or "object"
+    return f"{clean}_{index}" if index else clean
+
+
 class Task(Frozen):
     kind: Literal["bin_pick", "push", "drive"]
     instruction: str = Field(min_length=1, max_length=500)
-    objects: tuple[str, ...] = Field(default=("package",), max_length=32)
+    objects: tuple[str, ...] = Field(default=("package",), max_length=32,
+                                     description="the objects to place; the first is the target every task moves")
     controller_noise: float = Field(0.0, ge=0, le=1)
+
+    @field_validator("objects")
+    @classmethod
+    def _objects_become_bodies(cls, value: tuple[str, ...]) -> tuple[str, ...]:
+        if not value:
+            raise ValueError("the task needs at least one object: the first is its target")
+        cleaned = [object_body_name(o, 0) for o in value]
+        if len(set(cleaned)) != len(cleaned):
+            raise ValueError(f"objects repeat (once named as bodies): {list(value)}")
+        bodies: dict[str, str] = {}
+        for i, name in enumerate(value):
+            body = object_body_name(name, i)
+            if SCENE_BODIES.fullmatch(body):
+                raise ValueError(f"object {name!r} would be body {body!r}, a name the scene gives its own bodies")
+            if body in bodies:
+                raise ValueError(f"objects {bodies[body]!r} and {name!r} would both become body {body!r}")
+            bodies[body] = name
+        return value
 
 
 # Stressors: each a real change to the scene, typed with its parameters.

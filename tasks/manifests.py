@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import TypeVar
 
 import yaml
+from yaml.constructor import SafeConstructor
 from pydantic import BaseModel, ValidationError
 
 from schemas.hashing import canonical_json
@@ -25,20 +26,45 @@ class ManifestError(ValueError):
 
 def _check_shape(node: yaml.Node, where: str) -> None:
     # Walk the composed tree before constructing anything: aliases (billion laughs),
-    # depth and size are refused here, so nothing big is ever built.
-    stack = [(node, 1)]
+    # depth and size are refused here, so nothing big is ever built; so are repeated keys,
+    # which construction would drop silently (the last one wins).
+    stack = [(node, 1, "")]
     count = 0
+    keys = SafeConstructor()  # builds scalar keys only, to compare them as the mapping would
     while stack:
-        current, depth = stack.pop()
+        current, depth, field = stack.pop()
         count += 1
         if count > MAX_NODES:
             raise ManifestError(f"{where}: more than {MAX_NODES} YAML nodes")
         if depth > MAX_DEPTH:
             raise ManifestError(f"{where}: nested deeper than {MAX_DEPTH} levels")
         if isinstance(current, yaml.MappingNode):
-            stack.extend((n, depth + 1) for pair in current.value for n in pair)
+            _check_keys(current, where, field, keys)
+            for key, value in current.value:
+                inner = _dotted(field, key.value) if isinstance(key, yaml.ScalarNode) else field
+                stack += [(key, depth + 1, field), (value, depth + 1, inner)]
         elif isinstance(current, yaml.SequenceNode):
-            stack.extend((n, depth + 1) for n in current.value)
+            stack.extend((n, depth + 1, _dotted(field, i)) for i, n in enumerate(current.value))
+
+
+def _dotted(field: str, part) -> str:
+    return f"{field}.{part}" if field else str(part)
+
+
+def _check_keys(mapping: yaml.MappingNode, where: str, field: str, keys: SafeConstructor) -> None:
+    seen: dict = {}
+    for key, _ in mapping.value:
+        line = key.start_mark.line + 1
+        if key.tag == "tag:yaml.org,2002:merge":
+            # Without aliases a merge key only restates keys inline: a repeated key by another name.
+            raise ManifestError(f"{where}: {field or '(top level)'}: YAML merge key << is not allowed (line {line})")
+        if not isinstance(key, yaml.ScalarNode):
+            continue
+        value = keys.construct_object(key)
+        if value in seen:
+            raise ManifestError(f"{where}: {_dotted(field, key.value)}: given twice (lines {seen[value]} and {line}); "
+                                f"YAML would keep the last one without a word")
+        seen[value] = line
 
 
 class _NoAliasLoader(yaml.SafeLoader):

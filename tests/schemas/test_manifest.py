@@ -48,3 +48,40 @@ def test_manifest_is_frozen():
     m = _with()
     with pytest.raises(ValidationError):
         m.seed = 3
+
+
+def _objects(*objects):
+    return _with(task={**BASE["task"], "objects": list(objects)})
+
+
+@pytest.mark.parametrize("objects, problem", [
+    ((), "at least one object"),  # the scene's first object is the task's target (IndexError before)
+    (("package", "distractor"), "'distractor_1'"),  # the distractors stressor's own first bodies
+    (("distractor_3",), "'distractor_3'"),
+    (("package", "package"), "repeat"),
+    (("Package", "package"), "repeat"),  # one body name once lower-cased
+    (("package_1", "package"), "both become body 'package_1'"),
+    (("ee",), "'ee'"),
+    (("forklift",), "'forklift'"),
+    (("arm_link2",), "'arm_link2'"),
+    (("base",), "'base'"),
+    (("robot_base",), "'robot_base'"),  # an MJCF arm's bodies are all robot_* or gripper_*
+    (("gripper_pad",), "'gripper_pad'"),
+    (("world",), "'world'"),
+])
+def test_object_lists_the_scene_cannot_build_are_refused(objects, problem):
+    with pytest.raises(ValidationError) as info:
+        _objects(*objects)
+    assert "task.objects" in str(info.value) and problem in str(info.value)
+
+
+@pytest.mark.parametrize("objects", [("package",), ("package", "box", "crate"), ("distractor",), ("Package",)])
+def test_object_lists_with_distinct_free_names_pass(objects):
+    assert _objects(*objects).task.objects == objects
+
+
+def test_object_bodies_are_named_as_the_scene_names_them():
+    from schemas.manifest import object_body_name
+
+    assert [object_body_name(o, i) for i, o in enumerate(("Big Box", "", "x" * 30))] == \
+        ["big_box", "object_1", "x" * 24 + "_2"]
