@@ -22,7 +22,7 @@ import numpy as np
 import mujoco
 from pydantic import Field
 
-from schemas.manifest import Camera, Frozen, ScenarioManifest
+from schemas.manifest import Camera, Frozen, ScenarioManifest, object_body_name
 from schemas.settings import Settings
 from tasks.sim import robots, stressors
 from tasks.sim.kinematics import yaw_quat
@@ -48,7 +48,11 @@ class SimConfig(Frozen):
 
 
 def check_assets(manifest: ScenarioManifest, config: SimConfig | None = None) -> None:
-    """FileNotFoundError naming the field and the path when an MJCF the scene needs is missing."""
+    """FileNotFoundError naming the field and the path when an MJCF the scene needs is missing,
+    or it (or a file it makes MuJoCo read) lies outside the robots root: `robots.check_mjcf`.
+
+    Here rather than in manifest validation: the root is a setting of the machine, and a
+    manifest's validity, like its hash, may not depend on where it is read."""
     if manifest.embodiment.kind != "arm" or not manifest.embodiment.mjcf:
         return
     config = config or SimConfig()
@@ -60,6 +64,10 @@ def check_assets(manifest: ScenarioManifest, config: SimConfig | None = None) ->
         if not (root / relative).is_file():
             raise FileNotFoundError(f"{field_name} {relative!r}: no robot MJCF at {root / relative} "
                                     f"(MJCF paths resolve under WORLDLINE_ROBOTS_ROOT, now {root})")
+        try:
+            robots.check_mjcf(root / relative, root)
+        except robots.RobotFileError as exc:
+            raise robots.RobotFileError(f"{field_name} {relative!r}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -186,7 +194,7 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
     spec.visual.headlight.ambient = [0.15] * 3
     spec.visual.headlight.diffuse = [0.3] * 3
     package_mat = stressors.add_material(spec, "package_mat", (0.62, 0.45, 0.26), arng, look, (2, 2))
-    names = [_safe(o, i) for i, o in enumerate(manifest.task.objects)]
+    names = [object_body_name(o, i) for i, o in enumerate(manifest.task.objects)]
     arm = base = None
     if kind == "arm":
         if manifest.embodiment.mjcf:
@@ -270,11 +278,6 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
                  objects=tuple(objects), target_half=PACKAGE_HALF.copy(), goal=goal, rim_z=rim_z,
                  lane_x=fork.lane_m if fork else None, initial_qpos=qpos, initial_ctrl=ctrl, stressor_values=values,
                  grip_axis=grip_axis)
-
-
-def _safe(name: str, index: int) -> str:
-    clean = "".join(ch if ch.isalnum() else "_" for ch in name.lower())[:24] or "object"
-    return f"{clean}_{index}" if index else clean
 
 
 def _scale_lights(spec: mujoco.MjSpec, scale: float) -> None:

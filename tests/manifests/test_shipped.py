@@ -24,3 +24,10 @@ def test_shipped_manifest_validates(path):
 def test_shipped_manifests_are_distinct():
     hashes = {manifest_hash(load(p)) for p in SHIPPED}
     assert len(hashes) == len(SHIPPED)
+
+
+@pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.name)
+def test_shipped_manifest_has_its_robot_files(path):
+    from tasks.sim.scene import check_assets
+
+    check_assets(load(path))  # what every simulating command checks first

@@ -1,5 +1,7 @@
 """Scene building: cameras where the manifest puts them, seeded layout, clear errors."""
 
+import re
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,7 @@ from tasks.manifests import load
 from tasks.sim.render import MultiCameraRenderer
 from tasks.sim.scene import build_scene, look_quat
 
-from tests.support import MANIFESTS
+from tests.support import MANIFESTS, SHARED_DATA
 
 SHIPPED = sorted(MANIFESTS.glob("*.yaml"))
 
@@ -101,3 +103,114 @@ def test_robots_resolve_under_worldline_robots_root(tmp_path, monkeypatch):
     with pytest.raises(FileNotFoundError, match="gripper 'robotiq_2f85/2f85.xml': no robot MJCF at"):
         check_assets(arm)
     check_assets(arm, SimConfig(gripper_mjcf=None))
+
+
+# -- object names: every body the scene adds itself is a name the manifest contract reserves --
+def test_every_body_the_scene_adds_is_reserved_for_it():
+    from schemas.manifest import SCENE_BODIES
+    from schemas.manifest import Distractors, ForkliftCrossing, Occluder
+
+    every = (Distractors(count=50), ForkliftCrossing(), Occluder())
+    for name in ("bin_pick_dim_forklift.yaml", "conveyor_push.yaml", "mobile_rig_aisle.yaml"):
+        manifest = load(MANIFESTS / name)
+        stressors = every if manifest.embodiment.kind == "arm" else every[:2]
+        task = manifest.task.model_copy(update={"objects": ("package", "box", "crate")})
+        scene = build_scene(manifest.model_copy(update={"stressors": stressors, "task": task}), 0)
+        bodies = {scene.model.body(i).name for i in range(scene.model.nbody)}
+        ours = set(scene.objects[:len(task.objects)])
+        assert ours == {"package", "box_1", "crate_2"}
+        assert all(SCENE_BODIES.fullmatch(b) for b in bodies - ours), sorted(bodies - ours)
+
+
+# -- robot files: everything an MJCF makes MuJoCo read lies inside WORLDLINE_ROBOTS_ROOT --------
+ARM_MANIFEST = load(MANIFESTS / "bin_pick_dim_forklift.yaml").model_copy(
+    update={"embodiment": Embodiment(kind="arm", robot="ur5e", mjcf="arm/arm.xml")})
+
+
+def _robots(tmp_path, monkeypatch, arm_xml: str, files: dict[str, str] | None = None):
+    """A robots root holding arm/arm.xml and ``files`` (relative to the root), and a secret file
+    outside it; WORLDLINE_ROBOTS_ROOT points at the root."""
+    root, outside = tmp_path / "robots", tmp_path / "outside"
+    (root / "arm").mkdir(parents=True)
+    outside.mkdir()
+    (outside / "secret.xml").write_text("<mujoco><worldbody><body name='stolen'/></worldbody></mujoco>")
+    (outside / "secret.stl").write_text("solid x\nendsolid x\n")
+    (root / "arm" / "arm.xml").write_text(arm_xml.format(outside=outside))
+    for name, text in (files or {}).items():
+        (root / name).parent.mkdir(parents=True, exist_ok=True)
+        (root / name).write_text(text.format(outside=outside))
+    monkeypatch.setenv("WORLDLINE_ROBOTS_ROOT", str(root))
+    return root, outside
+
+
+def _refused(match: str) -> None:
+    from tasks.sim.scene import SimConfig, check_assets
+
+    with pytest.raises(FileNotFoundError) as info:
+        check_assets(ARM_MANIFEST, SimConfig(gripper_mjcf=None))
+    msg = str(info.value)
+    assert msg.startswith("embodiment.mjcf 'arm/arm.xml': ") and "\n" not in msg, msg
+    assert re.search(match, msg), msg
+
+
+@pytest.mark.parametrize("linked", ["file", "folder"])
+def test_an_mjcf_reached_through_a_symlink_out_of_the_root_is_refused(tmp_path, monkeypatch, linked):
+    root, outside = _robots(tmp_path, monkeypatch, "<mujoco/>")
+    (outside / "arm.xml").write_text("<mujoco/>")
+    if linked == "file":
+        (root / "arm" / "arm.xml").unlink()
+        (root / "arm" / "arm.xml").symlink_to(outside / "arm.xml")
+    else:
+        (root / "arm" / "arm.xml").unlink()
+        (root / "arm").rmdir()
+        (root / "arm").symlink_to(outside)
+    _refused(rf"resolves to {re.escape(str(outside / 'arm.xml'))}, outside the robots root {re.escape(str(root))}")
+
+
+@pytest.mark.parametrize("include", ["{outside}/secret.xml", "../../outside/secret.xml", "link.xml", "parts/inner.xml"])
+def test_an_include_out_of_the_root_is_refused(tmp_path, monkeypatch, include):
+    root, outside = _robots(tmp_path, monkeypatch, f'<mujoco><include file="{include}"/></mujoco>',
+                            {"arm/parts/inner.xml": '<mujoco><include file="../../outside/secret.xml"/></mujoco>'})
+    (root / "arm" / "link.xml").symlink_to(outside / "secret.xml")
+    _refused(r"<include file=.*> in arm/(arm|parts/inner).xml resolves to .*outside/secret.xml, "
+             r"outside the robots root")
+
+
+@pytest.mark.parametrize("arm_xml", [
+    '<mujoco><asset><mesh file="../../outside/secret.stl"/></asset></mujoco>',
+    '<mujoco><compiler meshdir="{outside}"/><asset><mesh file="secret.stl"/></asset></mujoco>',
+    '<mujoco><compiler assetdir="../../outside"/><asset><hfield file="secret.png" size="1 1 1 1"/></asset></mujoco>',
+    '<mujoco><compiler texturedir="../.."/><asset><texture type="cube" fileright="outside/x.png"/></asset></mujoco>',
+    '<mujoco><asset><skin file="{outside}/secret.skn"/></asset></mujoco>',
+    '<mujoco><include file="parts.xml"/><asset><mesh file="m.stl"/></asset></mujoco>',  # meshdir set in the include
+])
+def test_an_asset_file_out_of_the_root_is_refused(tmp_path, monkeypatch, arm_xml):
+    _robots(tmp_path, monkeypatch, arm_xml, {"arm/parts.xml": '<mujoco><compiler meshdir="{outside}"/></mujoco>'})
+    _refused(r"<(mesh|hfield|texture|skin) file\w*=.*> in arm/arm.xml resolves to .*, outside the robots root")
+
+
+def test_an_mjcf_with_a_doctype_is_refused_unread(tmp_path, monkeypatch):
+    _robots(tmp_path, monkeypatch, '<!DOCTYPE mujoco [<!ENTITY x SYSTEM "file://{outside}/secret.xml">]>'
+                                   '<mujoco model="&x;"/>')
+    _refused(r"arm/arm.xml: declares a DOCTYPE")
+
+
+def test_an_mjcf_whose_files_stay_inside_the_root_passes(tmp_path, monkeypatch):
+    from tasks.sim.scene import SimConfig, check_assets
+
+    root, _ = _robots(tmp_path, monkeypatch, '<mujoco><compiler meshdir="assets"/><include file="parts.xml"/>'
+                                             '<asset><mesh file="m.stl"/></asset></mujoco>',
+                      {"arm/parts.xml": '<mujoco><include file="more.xml"/></mujoco>', "arm/more.xml": "<mujoco/>"})
+    (root / "shared").mkdir()
+    (root / "arm" / "assets").symlink_to(root / "shared")  # a link that stays inside is fine
+    check_assets(ARM_MANIFEST, SimConfig(gripper_mjcf=None))
+
+
+@pytest.mark.skipif(not (SHARED_DATA / "robots").is_dir(), reason="no shared robots")
+def test_the_shipped_robots_pass(monkeypatch):
+    from tasks.sim.scene import SimConfig, check_assets
+
+    monkeypatch.setenv("WORLDLINE_ROBOTS_ROOT", str(SHARED_DATA / "robots"))
+    ur5e = ARM_MANIFEST.model_copy(update={"embodiment": Embodiment(kind="arm", robot="ur5e",
+                                                                      mjcf="universal_robots_ur5e/ur5e.xml")})
+    check_assets(ur5e, SimConfig())
