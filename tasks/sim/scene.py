@@ -24,7 +24,7 @@ from pydantic import Field
 
 from schemas.manifest import Camera, Frozen, ScenarioManifest, object_body_name
 from schemas.settings import Settings
-from tasks.sim import robots, stressors
+from tasks.sim import mjcf, robots, stressors
 from tasks.sim.kinematics import yaw_quat
 
 G = mujoco.mjtGeom
@@ -49,7 +49,7 @@ class SimConfig(Frozen):
 
 def check_assets(manifest: ScenarioManifest, config: SimConfig | None = None) -> None:
     """FileNotFoundError naming the field and the path when an MJCF the scene needs is missing,
-    or it (or a file it makes MuJoCo read) lies outside the robots root: `robots.check_mjcf`.
+    or it (or a file it makes MuJoCo read) lies outside the robots root: `mjcf.check_mjcf`.
 
     Here rather than in manifest validation: the root is a setting of the machine, and a
     manifest's validity, like its hash, may not depend on where it is read."""
@@ -65,9 +65,9 @@ def check_assets(manifest: ScenarioManifest, config: SimConfig | None = None) ->
             raise FileNotFoundError(f"{field_name} {relative!r}: no robot MJCF at {root / relative} "
                                     f"(MJCF paths resolve under WORLDLINE_ROBOTS_ROOT, now {root})")
         try:
-            robots.check_mjcf(root / relative, root)
-        except robots.RobotFileError as exc:
-            raise robots.RobotFileError(f"{field_name} {relative!r}: {exc}") from None
+            mjcf.check_mjcf(root / relative, root)
+        except mjcf.RobotFileError as exc:
+            raise mjcf.RobotFileError(f"{field_name} {relative!r}: {exc}") from None
 
 
 @dataclass(frozen=True)
