@@ -5,6 +5,14 @@ integration tests use it). The server keeps its SQLite database in `Settings().p
 (`<data_root>/prefect` by default), so one data root holds one lineage file and one Prefect
 history. Logs go next to it: server.log, worker.log, deploy.log.
 
+The API is closed to everyone but this user (issue 26: three requests from a page of another
+origin made the worker run a shell command). It wants an auth string: the user's own
+PREFECT_SERVER_API_AUTH_STRING, else one generated on the first start and kept, mode 0600,
+in `api-auth-string` next to the database, so each data root has its own. Every child here
+gets it as PREFECT_API_AUTH_STRING, and the worker hands it on to the flow runs it spawns.
+State changes also want a CSRF token, CORS admits only the server's own origins, and a request
+naming any host but 127.0.0.1 or localhost is refused (DNS rebinding).
+
 Children run in sessions of their own: a Ctrl-C in the terminal reaches only this process,
 which then stops the worker first (with SIGINT: a Prefect worker ignores SIGTERM) and the
 server after it, each by PID, and kills only as a last resort.
@@ -13,6 +21,8 @@ server after it, each by PID, and kills only as a last resort.
 from __future__ import annotations
 
 import os
+import secrets
+import shlex
 import signal
 import socket
 import subprocess
@@ -32,6 +42,11 @@ HOST = "127.0.0.1"
 SERVER_LOG = "server.log"
 WORKER_LOG = "worker.log"
 DEPLOY_LOG = "deploy.log"
+AUTH_FILE = "api-auth-string"
+AUTH_USER = "worldline"  # the UI's login asks for user:password
+SERVER_AUTH_VAR = "PREFECT_SERVER_API_AUTH_STRING"
+CLIENT_AUTH_VAR = "PREFECT_API_AUTH_STRING"
+ALLOWED_HOSTS = (HOST, "localhost")
 # A server start takes 10-30 s on this two-core machine when it is busy; keep a wide margin.
 START_TIMEOUT_S = 180.0
 STOP_TIMEOUT_S = 30.0
@@ -69,8 +84,57 @@ def free_port(host: str = HOST) -> int:
         return sock.getsockname()[1]
 
 
-def child_env(settings: Settings, api_url: str | None = None, extra: dict[str, str] | None = None) -> dict[str, str]:
-    """Environment for every child: absolute data paths (flow runs change directory), no prompts."""
+@dataclass(frozen=True)
+class AuthString:
+    """The string the server wants (Basic auth), where it comes from, and whether this start made it."""
+
+    value: str
+    source: str  # the file that keeps it, or the variable the user set
+    created: bool = False
+
+    def notice(self) -> str:
+        """What `serve` prints: the secret only on the start that generated it, its place always."""
+        if self.created:
+            return f"API auth string (new, shown this once; kept in {self.source}): {self.value}"
+        return f"API auth string: in {self.source}"
+
+    def export_hint(self) -> str:
+        if self.source == SERVER_AUTH_VAR:
+            return f'{CLIENT_AUTH_VAR}="${SERVER_AUTH_VAR}"'
+        return f'{CLIENT_AUTH_VAR}="$(cat {shlex.quote(self.source)})"'
+
+
+def auth_string(settings: Settings, environ: dict[str, str] | None = None) -> AuthString:
+    """The user's PREFECT_SERVER_API_AUTH_STRING if set; else the one kept under the data root,
+    generated (with `secrets`) and written 0600 when there is none yet."""
+    environ = os.environ if environ is None else environ
+    if environ.get(SERVER_AUTH_VAR):
+        return AuthString(environ[SERVER_AUTH_VAR], SERVER_AUTH_VAR)
+    path = settings.prefect_home_path.resolve() / AUTH_FILE
+    try:
+        kept = path.read_text().strip()
+    except FileNotFoundError:
+        kept = ""
+    if kept:
+        if path.stat().st_mode & 0o077:
+            path.chmod(0o600)
+        return AuthString(kept, str(path))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    value = f"{AUTH_USER}:{secrets.token_urlsafe(32)}"
+    # Written whole under another name, then renamed: a reader never sees half a secret, and
+    # the file is never readable by others, not even for a moment.
+    tmp = path.with_name(f".{AUTH_FILE}.{os.getpid()}")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    with os.fdopen(fd, "w") as out:
+        out.write(value + "\n")
+    os.replace(tmp, path)
+    return AuthString(value, str(path), created=True)
+
+
+def child_env(settings: Settings, api_url: str | None = None, extra: dict[str, str] | None = None,
+              auth: AuthString | None = None) -> dict[str, str]:
+    """Environment for every child: absolute data paths (flow runs change directory), no prompts,
+    and (given `auth`) the client side of the server's auth string and CSRF protection."""
     env = dict(os.environ)
     env["WORLDLINE_DATA_ROOT"] = str(settings.data_root.resolve())
     if settings.warehouse is not None:
@@ -84,6 +148,22 @@ def child_env(settings: Settings, api_url: str | None = None, extra: dict[str, s
     if api_url:
         env["PREFECT_API_URL"] = api_url
     env.update(extra or {})
+    if auth is not None:
+        env[CLIENT_AUTH_VAR] = auth.value
+        env["PREFECT_CLIENT_CSRF_SUPPORT_ENABLED"] = "true"
+        env.pop(SERVER_AUTH_VAR, None)  # only the server needs its side
+    return env
+
+
+def server_env(settings: Settings, port: int, auth: AuthString, ui: bool,
+               extra: dict[str, str] | None = None) -> dict[str, str]:
+    """A client's environment plus the server's side: auth string, CSRF protection, its own origins."""
+    env = child_env(settings, f"http://{HOST}:{port}/api", extra, auth)
+    env[SERVER_AUTH_VAR] = auth.value
+    env["PREFECT_SERVER_CSRF_PROTECTION_ENABLED"] = "true"
+    # The UI may be opened as localhost while it calls the API at 127.0.0.1: both are its own.
+    env["PREFECT_SERVER_CORS_ALLOWED_ORIGINS"] = ",".join(f"http://{h}:{port}" for h in ALLOWED_HOSTS)
+    env["PREFECT_SERVER_UI_ENABLED"] = "true" if ui else "false"
     return env
 
 
@@ -137,9 +217,32 @@ def healthy(api_url: str) -> bool:
         return False
 
 
-def start_server(settings: Settings, port: int | None = None, ui: bool = False,
+def run_server(port: int) -> None:
+    """What the server child runs: Prefect's app as `prefect server start` runs it (same factory,
+    uvicorn options from the same settings), behind Starlette's Host check.
+
+    Prefect has no setting for allowed hosts, and the auth string alone would still let a rebound
+    name reach the UI and the unauthenticated health routes. The port is not compared: a browser
+    can only reach this socket through a name that resolves here, and that name is what is checked.
+    """
+    import prefect
+    import uvicorn
+    from prefect.server.api.server import create_app
+    from prefect.settings import get_current_settings
+    from starlette.middleware.trustedhost import TrustedHostMiddleware
+
+    server = get_current_settings().server
+    print(f"Prefect {prefect.__version__} server on http://{HOST}:{port}: auth string required, CSRF protection on, "
+          f"hosts {', '.join(ALLOWED_HOSTS)} only", flush=True)
+    app = TrustedHostMiddleware(create_app(final=True), allowed_hosts=list(ALLOWED_HOSTS), www_redirect=False)
+    uvicorn.run(app, host=HOST, port=port, timeout_keep_alive=server.api.keepalive_timeout,
+                ws_ping_interval=server.api.websocket_ping_interval, ws_ping_timeout=server.api.websocket_ping_timeout,
+                log_level=server.logging_level.lower())
+
+
+def start_server(settings: Settings, auth: AuthString, port: int | None = None, ui: bool = False,
                  env: dict[str, str] | None = None) -> tuple[Child, str]:
-    """Start `prefect server start` on 127.0.0.1 (a free port unless given); returns it and its API URL.
+    """Start the Prefect server (`run_server`) on 127.0.0.1 (a free port unless given); returns it and its API URL.
 
     The scheduler and the other services run inside it, so cron schedules create runs.
     """
@@ -147,8 +250,8 @@ def start_server(settings: Settings, port: int | None = None, ui: bool = False,
     api_url = f"http://{HOST}:{port}/api"
     home = settings.prefect_home_path.resolve()
     home.mkdir(parents=True, exist_ok=True)
-    args = prefect_command("server", "start", "--host", HOST, "--port", str(port), "--ui" if ui else "--no-ui")
-    server = spawn("prefect server", args, child_env(settings, api_url, env), home / SERVER_LOG)
+    args = [sys.executable, "-m", "flows.server", str(port)]
+    server = spawn("prefect server", args, server_env(settings, port, auth, ui, env), home / SERVER_LOG)
     try:
         wait_until(lambda: healthy(api_url), server, f"prefect server at {api_url}")
     except BaseException:
@@ -157,14 +260,14 @@ def start_server(settings: Settings, port: int | None = None, ui: bool = False,
     return server, api_url
 
 
-def ensure_pool(api_url: str, pool: str = POOL) -> None:
+def ensure_pool(api_url: str, auth: AuthString, pool: str = POOL) -> None:
     """Create the process work pool unless it exists; refuse a pool of another type."""
     from prefect.client.orchestration import SyncPrefectClient
     from prefect.client.schemas.actions import WorkPoolCreate
     from prefect.exceptions import ObjectNotFound
     from prefect.workers.process import ProcessWorker
 
-    with SyncPrefectClient(api_url) as client:
+    with SyncPrefectClient(api_url, auth_string=auth.value) as client:
         try:
             existing = client.read_work_pool(pool)
         except ObjectNotFound:
@@ -175,7 +278,7 @@ def ensure_pool(api_url: str, pool: str = POOL) -> None:
         raise StackError(f"work pool {pool!r} at {api_url} is of type {existing.type!r}, not 'process'")
 
 
-def deploy_flows(api_url: str, settings: Settings, prefect_file: Path = PREFECT_FILE,
+def deploy_flows(api_url: str, settings: Settings, auth: AuthString, prefect_file: Path = PREFECT_FILE,
                  env: dict[str, str] | None = None) -> str:
     """`prefect --no-prompt deploy --all` from the project root; returns its output, raises StackError on failure."""
     if not Path(prefect_file).is_file():
@@ -183,7 +286,7 @@ def deploy_flows(api_url: str, settings: Settings, prefect_file: Path = PREFECT_
     args = prefect_command("--no-prompt", "deploy", "--all", "--prefect-file", str(Path(prefect_file).resolve()))
     log = settings.prefect_home_path.resolve() / DEPLOY_LOG
     log.parent.mkdir(parents=True, exist_ok=True)
-    done = subprocess.run(args, cwd=PROJECT_ROOT, env=child_env(settings, api_url, env), stdin=subprocess.DEVNULL,
+    done = subprocess.run(args, cwd=PROJECT_ROOT, env=child_env(settings, api_url, env, auth), stdin=subprocess.DEVNULL,
                           capture_output=True, text=True, timeout=600)
     output = done.stdout + done.stderr
     with open(log, "a") as out:
@@ -194,26 +297,26 @@ def deploy_flows(api_url: str, settings: Settings, prefect_file: Path = PREFECT_
     return output
 
 
-def start_worker(api_url: str, settings: Settings, pool: str = POOL, name: str | None = None,
+def start_worker(api_url: str, settings: Settings, auth: AuthString, pool: str = POOL, name: str | None = None,
                  env: dict[str, str] | None = None) -> Child:
     """Start a process worker on `pool` and wait until the server lists it."""
     name = name or f"worldline-{uuid.uuid4().hex[:8]}"
     args = prefect_command("worker", "start", "--pool", pool, "--type", "process", "--name", name)
     log = settings.prefect_home_path.resolve() / WORKER_LOG
-    worker = spawn("prefect worker", args, child_env(settings, api_url, env), log)
+    worker = spawn("prefect worker", args, child_env(settings, api_url, env, auth), log)
     try:
-        wait_until(lambda: worker_joined(api_url, pool, name), worker, f"worker {name!r} on pool {pool!r}")
+        wait_until(lambda: worker_joined(api_url, auth, pool, name), worker, f"worker {name!r} on pool {pool!r}")
     except BaseException:
         stop(worker, signal.SIGINT)
         raise
     return worker
 
 
-def worker_joined(api_url: str, pool: str, name: str) -> bool:
+def worker_joined(api_url: str, auth: AuthString, pool: str, name: str) -> bool:
     from prefect.client.orchestration import SyncPrefectClient
     from prefect.exceptions import ObjectNotFound
 
-    with SyncPrefectClient(api_url) as client:
+    with SyncPrefectClient(api_url, auth_string=auth.value) as client:
         try:
             return any(w.name == name for w in client.read_workers_for_work_pool(pool))
         except ObjectNotFound:  # the worker creates the pool when it is missing
@@ -276,6 +379,7 @@ class LocalStack:
         self.server: Child | None = None
         self.worker: Child | None = None
         self.api_url: str | None = None
+        self.auth: AuthString | None = None
         self.deploy_output = ""
 
     @property
@@ -286,17 +390,23 @@ class LocalStack:
     def worker_pid(self) -> int | None:
         return self.worker.pid if self.worker else None
 
+    @property
+    def auth_string(self) -> str | None:
+        return self.auth.value if self.auth else None
+
     def env(self) -> dict[str, str]:
         """The environment a `prefect` command needs to talk to this server."""
-        return child_env(self.settings, self.api_url, self.extra_env)
+        return child_env(self.settings, self.api_url, self.extra_env, self.auth)
 
     def start(self) -> LocalStack:
         try:
-            self.server, self.api_url = start_server(self.settings, self.port, self.ui, self.extra_env)
-            ensure_pool(self.api_url, self.pool)
+            self.auth = auth_string(self.settings, {**os.environ, **self.extra_env})
+            self.server, self.api_url = start_server(self.settings, self.auth, self.port, self.ui, self.extra_env)
+            ensure_pool(self.api_url, self.auth, self.pool)
             if self.deploy:
-                self.deploy_output = deploy_flows(self.api_url, self.settings, self.prefect_file, self.extra_env)
-            self.worker = start_worker(self.api_url, self.settings, self.pool, env=self.extra_env)
+                self.deploy_output = deploy_flows(self.api_url, self.settings, self.auth, self.prefect_file,
+                                                  self.extra_env)
+            self.worker = start_worker(self.api_url, self.settings, self.auth, self.pool, env=self.extra_env)
         except BaseException:
             self.stop()
             raise
@@ -343,7 +453,9 @@ def serve(port: int | None = None, pool: str = POOL, deploy: bool = True) -> Non
         stack.start()
         print(f"Prefect server pid {stack.server_pid}: API {stack.api_url}, UI {stack.api_url.removesuffix('/api')}\n"
               f"process worker pid {stack.worker_pid} on pool {pool!r}; logs in {stack.settings.prefect_home_path}\n"
-              f"to use it: export PREFECT_API_URL={stack.api_url}\nCtrl-C stops both.", flush=True)
+              f"{stack.auth.notice()}\n"
+              f"to use it: export PREFECT_API_URL={stack.api_url} {stack.auth.export_hint()}\n"
+              f"Ctrl-C stops both.", flush=True)
         while (dead := stack.dead()) is None:
             time.sleep(1)
         raise _died(dead)
@@ -355,3 +467,7 @@ def serve(port: int | None = None, pool: str = POOL, deploy: bool = True) -> Non
             signal.signal(signal.SIGTERM, previous)
         if ignored:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+if __name__ == "__main__":  # the server child of start_server: python -m flows.server PORT
+    run_server(int(sys.argv[1]))

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from flows.server import POOL, LocalStack, group_members
+from flows.server import AUTH_FILE, POOL, LocalStack, auth_string, group_members
 from schemas.manifest import manifest_hash
 from schemas.settings import Settings
 from tasks.manifests import load
@@ -105,6 +105,32 @@ def test_every_flow_has_a_deployment_and_curate_runs_nightly():
     assert pull["directory"] == "{{ project-root.stdout }}"
 
 
+# -- the auth string, without a server -------------------------------------------------------------
+def test_auth_string_is_generated_once_kept_0600_and_shown_only_then(tmp_path):
+    settings = Settings(data_root=tmp_path)
+    first = auth_string(settings, {})
+    path = settings.prefect_home_path / AUTH_FILE
+    assert first.created and first.source == str(path.resolve())
+    assert path.stat().st_mode & 0o777 == 0o600 and path.read_text().strip() == first.value
+    assert first.value.startswith("worldline:") and len(first.value) > 40
+    assert first.value in first.notice() and str(path.resolve()) in first.notice()
+    again = auth_string(settings, {})
+    assert (again.value, again.created) == (first.value, False)
+    assert first.value not in again.notice() and str(path.resolve()) in again.notice()
+    assert auth_string(Settings(data_root=tmp_path / "other"), {}).value != first.value  # one per data root
+    path.chmod(0o644)
+    auth_string(settings, {})
+    assert path.stat().st_mode & 0o777 == 0o600
+
+
+def test_a_user_supplied_auth_string_wins(tmp_path):
+    settings = Settings(data_root=tmp_path)
+    mine = auth_string(settings, {"PREFECT_SERVER_API_AUTH_STRING": "me:secret"})
+    assert (mine.value, mine.source, mine.created) == ("me:secret", "PREFECT_SERVER_API_AUTH_STRING", False)
+    assert "me:secret" not in mine.notice()
+    assert not (settings.prefect_home_path / AUTH_FILE).exists()
+
+
 # -- a real server and worker -------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def stack(tmp_path_factory):
@@ -126,7 +152,7 @@ def prefect_cli(stack: LocalStack, *args: str) -> subprocess.CompletedProcess:
 def client(stack: LocalStack):
     from prefect.client.orchestration import SyncPrefectClient
 
-    return SyncPrefectClient(stack.api_url)
+    return SyncPrefectClient(stack.api_url, auth_string=stack.auth_string)
 
 
 def wait_final(stack: LocalStack, flow_run_id: str):
@@ -217,6 +243,55 @@ def test_nightly_schedule_creates_scheduled_runs(stack):
     assert all(r.parameters == curate["parameters"] for r in runs)
 
 
+EVIL_ORIGIN = "http://evil.example"
+
+
+@pytest.mark.slow
+def test_a_page_of_another_origin_cannot_make_the_worker_run_a_command(stack, tmp_path):
+    """Issue 26: three requests from a page on another origin made the worker run a shell command."""
+    import httpx
+    from prefect.client.schemas.filters import FlowFilter, FlowFilterName
+
+    marker = tmp_path / "pwned"
+    command = f"touch {marker}"
+    register = next(d for d in LIVE if flow_name(d) == "register")
+    with client(stack) as api:
+        deployment = api.read_deployment_by_name(f"register/{register['name']}")
+    # What a browser sends for a page on evil.example: its Origin, no credentials it could know.
+    with httpx.Client(base_url=stack.api_url, headers={"Origin": EVIL_ORIGIN}, timeout=30) as page:
+        preflight = page.options("/flows/", headers={"Access-Control-Request-Method": "POST",
+                                                     "Access-Control-Request-Headers": "content-type"})
+        answers = {
+            "create flow": page.post("/flows/", json={"name": "evil"}),
+            "create deployment": page.post("/deployments/", json={
+                "name": "evil", "flow_id": str(deployment.flow_id), "work_pool_name": stack.pool,
+                "entrypoint": register["entrypoint"], "job_variables": {"command": command}}),
+            "create flow run": page.post(f"/deployments/{deployment.id}/create_flow_run",
+                                         json={"job_variables": {"command": command}}),
+        }
+    codes = {what: answer.status_code for what, answer in answers.items()}
+    assert all(code in (401, 403) for code in codes.values()), codes
+    assert preflight.status_code >= 400 and "access-control-allow-origin" not in preflight.headers, preflight.headers
+    # The auth string alone is not enough for a state change: CSRF protection wants a token too.
+    auth = httpx.BasicAuth(*stack.auth_string.split(":", 1))
+    assert httpx.post(f"{stack.api_url}/flows/", json={"name": "evil"}, auth=auth, timeout=30).status_code == 403
+    with client(stack) as api:  # the legitimate client (auth string and CSRF token) still works
+        assert api.read_flows(flow_filter=FlowFilter(name=FlowFilterName(any_=["evil"]))) == []
+        assert api.create_flow_from_name("legitimate")
+    assert not marker.exists()
+
+
+@pytest.mark.slow
+def test_a_rebound_host_name_is_refused(stack):
+    """DNS rebinding: evil.example resolving to 127.0.0.1 makes the browser send Host: evil.example."""
+    import httpx
+
+    port = int(stack.api_url.split(":")[2].split("/")[0])
+    codes = {host: httpx.get(f"{stack.api_url}/health", headers={"Host": host}, timeout=30).status_code
+             for host in (f"evil.example:{port}", f"127.0.0.1:{port}", f"localhost:{port}")}
+    assert codes == {f"evil.example:{port}": 400, f"127.0.0.1:{port}": 200, f"localhost:{port}": 200}
+
+
 @pytest.mark.slow
 def test_stop_ends_server_and_worker_by_pid(stack):
     pids = {"server": stack.server_pid, "worker": stack.worker_pid}
@@ -267,6 +342,9 @@ def test_serve_runs_until_ctrl_c_then_leaves_nothing_behind(tmp_path, sigint):
         text = "".join(lines)
         pids = [int(p) for p in re.findall(r"pid (\d+)", text)]
         assert len(pids) == 2 and "PREFECT_API_URL=http://127.0.0.1:" in text, text
+        kept = tmp_path / "prefect" / AUTH_FILE
+        assert f"kept in {kept}): {kept.read_text().strip()}" in text  # a new string: shown once, with its file
+        assert f'PREFECT_API_AUTH_STRING="$(cat {kept})"' in text
         proc.send_signal(signal.SIGINT)
         assert proc.wait(timeout=120) == 0, proc.stdout.read()
     finally:
