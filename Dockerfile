@@ -27,9 +27,21 @@ COPY . /app
 # Prefect change cannot drop it).
 RUN pip install -e ".[ray]" asyncpg
 
+# Every service runs as this user, not root: the worker runs whatever a flow run asks (issue 26
+# showed how one can be made to), so what it can touch is the data volume and its home. The code
+# under /app stays root's, read-only to it.
+RUN useradd --create-home --uid 1000 --user-group worldline
+# Prefect copies its UI into its own package folder on a server's first start, which only root
+# may write; Prefect's setting for this case points it at a folder of the user's instead.
+ENV PREFECT_SERVER_UI_STATIC_DIRECTORY=/home/worldline/prefect-ui
+
 # The data volume (WORLDLINE_DATA_ROOT in docker-compose.yml) is mounted here; a new volume
-# starts as a copy of this folder, so it has the inbox the nightly curate deployment reads.
-RUN mkdir -p /app/.worldline/inbox
+# starts as a copy of this folder, owner included, so it has the inbox the nightly curate
+# deployment reads and the user can write it. (A volume made by an older image, as root, needs
+# `docker compose run --rm --user root worker chown -R worldline: /app/.worldline` once.)
+RUN mkdir -p /app/.worldline/inbox /home/worldline/prefect-ui \
+    && chown -R worldline:worldline /app/.worldline /home/worldline/prefect-ui
 VOLUME ["/app/.worldline"]
+USER worldline
 
 CMD ["prefect", "worker", "start", "--pool", "worldline-local", "--type", "process"]

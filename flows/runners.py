@@ -18,8 +18,18 @@ from prefect.task_runners import ProcessPoolTaskRunner, TaskRunner, ThreadPoolTa
 from schemas.settings import Settings
 
 # Ray workers are fresh processes: they see Worldline's settings and the flow's Prefect API
-# only through the environment the runner hands them.
+# (its URL and auth string) only through the environment the runner hands them. Server-side
+# settings stay behind: the workers are clients, and a cluster shows each job's runtime env to
+# anyone who reaches its dashboard (a database URL holds a password).
 _FORWARDED_PREFIXES = ("WORLDLINE_", "PREFECT_", "MUJOCO_GL")
+_SERVER_ONLY_PREFIXES = ("PREFECT_SERVER_", "PREFECT_API_DATABASE_")
+
+
+def ray_worker_env(environ: dict[str, str] | None = None) -> dict[str, str]:
+    """The variables of `environ` (this process's by default) a Ray worker gets."""
+    environ = os.environ if environ is None else environ
+    return {k: v for k, v in environ.items()
+            if k.startswith(_FORWARDED_PREFIXES) and not k.startswith(_SERVER_ONLY_PREFIXES)}
 
 
 def task_runner(settings: Settings | None = None) -> TaskRunner:
@@ -43,7 +53,7 @@ def task_runner(settings: Settings | None = None) -> TaskRunner:
         def __enter__(self):
             from prefect.context import SyncClientContext
 
-            env = {k: v for k, v in os.environ.items() if k.startswith(_FORWARDED_PREFIXES)}
+            env = ray_worker_env()
             ctx = SyncClientContext.get()
             if ctx is not None:
                 env["PREFECT_API_URL"] = str(ctx.client.api_url).rstrip("/")
@@ -55,6 +65,7 @@ def task_runner(settings: Settings | None = None) -> TaskRunner:
         def duplicate(self):
             return type(self)(address=self.address, init_kwargs=self.init_kwargs)
 
+    # A local cluster lives as long as one flow run: no dashboard (its job API runs code).
     init_kwargs: dict = {"include_dashboard": False} if not settings.ray_address else {}
     if not settings.ray_address:
         init_kwargs["num_cpus"] = settings.workers

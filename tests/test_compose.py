@@ -12,7 +12,7 @@ from urllib.parse import urlsplit
 import pytest
 import yaml
 
-from flows.server import POOL
+from flows.server import AUTH_FILE, POOL
 from schemas.settings import Settings
 
 from tests.support import REPO
@@ -66,6 +66,11 @@ def bare(value: str) -> str:
     return re.sub(r"\$\{(\w+)[^}]*\}", r"\1", value)
 
 
+def default(value: str) -> str:
+    """What a compose value `${NAME:-default}` gives when NAME is unset (a plain value: itself)."""
+    return re.sub(r"\$\{\w+:-([^}]*)\}", r"\1", value)
+
+
 def flag(argv: list[str], name: str) -> str:
     """Value of `--name=value` or `--name value` in an argv."""
     for i, arg in enumerate(argv):
@@ -106,9 +111,32 @@ def test_dockerfile_matches_pyproject():
     assert instructions("WORKDIR") == ["/app"] and "COPY . /app" in [f"COPY {a}" for a in instructions("COPY")]
 
 
+def image_env() -> dict[str, str]:
+    return dict(pair.split("=", 1) for args in instructions("ENV") for pair in shlex.split(args))
+
+
+def test_the_image_runs_as_a_user_of_its_own_who_owns_the_data_root_only():
+    # Issue 26: the worker runs what a flow run asks, so it must not be root in its container.
+    user = instructions("USER")[-1]
+    assert user not in ("root", "0") and not user.startswith(("root:", "0:"))
+    assert any(re.search(rf"useradd .*\b{user}$", run) for run in instructions("RUN"))
+    order = [instr for instr, _ in dockerfile()]
+    assert order.index("USER") > max(i for i, instr in enumerate(order) if instr == "RUN")  # nothing after runs as root
+    root = env("worker")["WORLDLINE_DATA_ROOT"]
+    chowned = [run for run in instructions("RUN") if f"chown -R {user}:{user}" in run]
+    assert chowned and root in chowned[0].split() and "/app" not in chowned[0].split()  # the code stays root's
+    # before VOLUME: a new volume copies the folder with its owner; later changes would be lost
+    assert order.index("VOLUME") > instructions("RUN").index(chowned[0]) and instructions("VOLUME") == [f'["{root}"]']
+    ui = image_env()["PREFECT_SERVER_UI_STATIC_DIRECTORY"]  # Prefect's own UI folder is root's
+    assert ui.startswith(f"/home/{user}/") and ui in chowned[0].split()
+    for name in SERVICES:
+        assert SERVICES[name].get("user") in (None, user), f"{name} runs as {SERVICES[name]['user']}"
+
+
 def test_dockerignore_keeps_local_state_out_of_the_context():
     ignored = set((REPO / ".dockerignore").read_text().split())
     assert {".git", ".venv", ".worldline"} <= ignored
+    assert {".env", f"**/{AUTH_FILE}"} <= ignored  # secrets would stay in an image layer
 
 
 def executables() -> dict[str, bool]:
@@ -162,6 +190,25 @@ def test_clients_reach_the_server_with_its_auth_string():
     assert SERVICES["prefect-server"]["ports"] == [f"${{BIND_ADDRESS:-127.0.0.1}}:{server['port']}:{server['port']}"]
 
 
+def test_server_wants_csrf_tokens_and_answers_only_its_own_origins():
+    server = env("prefect-server")
+    assert server["PREFECT_SERVER_CSRF_PROTECTION_ENABLED"] == "true"
+    origins = default(server["PREFECT_SERVER_CORS_ALLOWED_ORIGINS"]).split(",")
+    _, start = prefect_parse(SERVICES["prefect-server"]["command"])
+    assert "*" not in origins and {urlsplit(o).port for o in origins} == {start["port"]}
+    assert f"{urlsplit(default(server['PREFECT_UI_API_URL'])).scheme}://{urlsplit(default(server['PREFECT_UI_API_URL'])).netloc}" in origins
+    for name in ("deploy", "worker"):
+        assert env(name)["PREFECT_CLIENT_CSRF_SUPPORT_ENABLED"] == "true"
+
+
+def test_ray_dashboard_listens_on_localhost_unless_asked():
+    # Its job API runs code: reachable from the compose network only when RAY_DASHBOARD_HOST says so.
+    head = SERVICES["ray-head"]["command"]
+    host = flag(head, "--dashboard-host")
+    assert re.fullmatch(r"\$\{RAY_DASHBOARD_HOST:-127\.0\.0\.1\}", host)
+    assert default(host) == "127.0.0.1"
+
+
 def test_server_uses_the_postgres_service():
     db = env("postgres")
     url = urlsplit(bare(env("prefect-server")["PREFECT_API_DATABASE_CONNECTION_URL"]))
@@ -198,6 +245,7 @@ def test_every_prefect_variable_is_a_prefect_setting():
     from prefect.settings.legacy import _get_valid_setting_names
 
     valid = _get_valid_setting_names(PrefectSettings)
+    assert {k for k in image_env() if k.startswith("PREFECT_")} <= valid
     for name in SERVICES:
         unknown = {k for k in env(name) if k.startswith("PREFECT_")} - valid
         assert not unknown, f"{name}: Prefect has no settings {sorted(unknown)}"
@@ -219,7 +267,8 @@ def test_one_data_volume_at_the_data_root():
     curate = next(d for d in PREFECT_YAML["deployments"] if d["entrypoint"].endswith(":curate"))
     for inbox in curate["parameters"]["inputs"]:
         assert f"{workdir}/{inbox}".startswith(root + "/")
-        assert f"mkdir -p {workdir}/{inbox}" in instructions("RUN")
+        assert any(run.startswith("mkdir -p ") and f"{workdir}/{inbox}" in run.split("&&")[0].split()
+                   for run in instructions("RUN"))
     used = {v.split(":")[0] for s in SERVICES.values() for v in s.get("volumes", [])}
     assert used == set(COMPOSE["volumes"]) == {"worldline-data", "postgres-data"}
 
@@ -236,4 +285,5 @@ def test_healthchecks_and_start_order():
     _, worker = prefect_parse(SERVICES["worker"]["command"])
     assert worker["with_healthcheck"] is True
     port = env("worker")["PREFECT_WORKER_WEBSERVER_PORT"]
+    assert env("worker")["PREFECT_WORKER_WEBSERVER_HOST"] == "127.0.0.1"  # only its own healthcheck calls it
     assert f"http://127.0.0.1:{port}/health" in " ".join(SERVICES["worker"]["healthcheck"]["test"])

@@ -3,7 +3,7 @@
 from prefect.task_runners import ProcessPoolTaskRunner
 
 from flows.curate import curate
-from flows.runners import task_runner
+from flows.runners import ray_worker_env, task_runner
 from schemas.settings import Settings
 
 from tests.support import curate_on, runner_inbox
@@ -20,3 +20,12 @@ def test_process_runner_gives_the_same_shards_and_lineage(prefect_harness, tmp_p
     assert threads[0]["counts"] == processes[0]["counts"] and processes[0]["clips"] >= 1
     assert threads[1] and threads[1] == processes[1]  # byte-identical shards under the same paths
     assert threads[2] == processes[2]  # the same lineage rows, written once by the flow process
+
+
+def test_ray_workers_get_the_client_side_only():
+    environ = {"PREFECT_API_URL": "http://127.0.0.1:4200/api", "PREFECT_API_AUTH_STRING": "worldline:s3cret",
+               "PREFECT_SERVER_API_AUTH_STRING": "worldline:s3cret", "WORLDLINE_WORKERS": "2",
+               "PREFECT_API_DATABASE_CONNECTION_URL": "postgresql+asyncpg://prefect:pw@postgres/prefect",
+               "MUJOCO_GL": "egl", "HOME": "/root"}
+    assert ray_worker_env(environ) == {"PREFECT_API_URL": "http://127.0.0.1:4200/api", "WORLDLINE_WORKERS": "2",
+                                       "PREFECT_API_AUTH_STRING": "worldline:s3cret", "MUJOCO_GL": "egl"}
