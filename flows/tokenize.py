@@ -12,15 +12,17 @@ import torch
 from prefect import flow, task
 from pydantic import Field
 
+from flows.lookup import verified_file
 from flows.params import Batch, Seed, Side, Steps, Weight
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table
 from flows.report import publish as publish_report
 from models.tokenizer import VideoTokenizer, preset
 from schemas import paths
-from schemas.hashing import content_hash, sha256_file, stable_id
-from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, StageRunRecord
+from schemas.hashing import content_hash, stable_id
+from schemas.records import EdgeRecord, LineageBatch, StageRunRecord
 from schemas.settings import Settings
+from tasks import integrity
 from tasks.tokenize import data, tokens
 from tasks.tokenize.train import TrainConfig, psnr, to_tensor, train_tokenizer
 
@@ -31,7 +33,8 @@ def shard_files(shards: str, root: Path) -> list[Path]:
     """A folder or file of shards, or a manifest hash (its first 12+ hex digits) naming its shard folder."""
     place = Path(shards)
     if not place.exists() and len(shards) >= 12 and all(ch in "0123456789abcdef" for ch in shards):
-        place = Path(root) / Path(paths.SHARD_FILE.format(manifest_hash=shards, resolution="x", length="x", index=0)).parents[2]
+        place = Path(root) / Path(paths.SHARD_FILE.format(manifest_hash=shards, resolution="x", length="x", index=0,
+                                                          sha256="x")).parents[2]
     found = data.find_shards([place])
     if not found:
         raise FileNotFoundError(f"{shards}: no shard files there (give a shard folder or a manifest hash)")
@@ -39,22 +42,15 @@ def shard_files(shards: str, root: Path) -> list[Path]:
 
 
 def shard_artifacts(run: RunContext, files: list[Path]) -> list[tuple[Path, str, str, str | None]]:
-    """(path, uri, artifact id, manifest hash) per shard; shards lineage has never seen are recorded now."""
+    """(path, uri, artifact id, manifest hash) per shard, each hashed once and checked against
+    lineage: a changed shard raises TamperedArtifact, one curate never wrote InvalidInput
+    (registering it would start a lineage with no clips or raw videos behind it)."""
     root = run.settings.data_root.resolve()
-    out, unknown = [], []
+    out = []
     for path in files:
-        digest = sha256_file(str(path))
-        uri = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
-        _, rows = run.warehouse.query("SELECT artifact_id, manifest_hash FROM artifacts WHERE kind = 'shard' "
-                                      "AND sha256 = $sha ORDER BY artifact_id LIMIT 1", {"sha": digest})
-        if rows:
-            out.append((path, uri, rows[0][0], rows[0][1]))
-        else:
-            shard_id = stable_id("shard", uri, digest)
-            unknown.append(ArtifactRecord(artifact_id=shard_id, kind="shard", uri=uri, sha256=digest,
-                                          bytes=path.stat().st_size, attrs={"registered_by": "tokenize"}))
-            out.append((path, uri, shard_id, None))
-    run.write(LineageBatch(artifacts=unknown))
+        shard_id, mh, _ = verified_file(run.warehouse, root, path, "shard", "curated shard",
+                                        "tokenize reads shards `worldline curate` wrote")
+        out.append((path, integrity.uri_of(path, root), shard_id, mh))
     return out
 
 

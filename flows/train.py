@@ -15,7 +15,7 @@ import torch
 from prefect import flow, task
 from pydantic import Field
 
-from flows.lookup import checkpoint_by_id, is_hex_id, tokenizer_condition
+from flows.lookup import checkpoint_by_id, is_hex_id, tokenizer_condition, verified_checkpoint, verified_file
 from flows.params import Batch, Seed, Share, Steps, Weight
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table
@@ -23,15 +23,17 @@ from flows.report import publish as publish_report
 from models.tokenizer import TokenizerConfig
 from models.world_model import WorldModel, WorldModelConfig, preset
 from schemas import paths
-from schemas.hashing import content_hash, sha256_file, stable_id
+from schemas.hashing import content_hash, stable_id
 from schemas.manifest import manifest_hash
-from schemas.records import ArtifactRecord, LineageBatch, StageRunRecord
+from schemas.records import LineageBatch, StageRunRecord
 from schemas.settings import Settings
-from tasks import manifests
+from tasks import integrity, manifests
+from tasks.checkpoint_files import CheckpointError
 from tasks.tokenize import tokens
 from tasks.world import checkpoints, data
 from tasks.world.train import WorldTrainConfig, train_world_model
 from tasks.world.train import posttrain as posttrain_model
+from warehouse import integrity as claims
 
 STAGE_PRETRAIN, STAGE_POSTTRAIN = "pretrain_world_model", "posttrain_world_model"
 # Bumped when post-training learns something different from the same inputs, so an earlier
@@ -43,19 +45,11 @@ def _uri(path: Path, root: Path) -> str:
     return path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
 
 
-def _known(run: RunContext, kind: str, path: Path, root: Path, attrs: dict) -> tuple[str, str | None]:
-    """(artifact id, manifest hash) of a file by its bytes; one lineage has never seen is recorded now."""
-    digest = sha256_file(str(path))
-    _, rows = run.warehouse.query("SELECT artifact_id, manifest_hash FROM artifacts WHERE kind = $kind "
-                                  "AND sha256 = $sha ORDER BY artifact_id LIMIT 1", {"kind": kind, "sha": digest})
-    if rows:
-        return rows[0][0], rows[0][1]
-    uri = _uri(path, root)
-    artifact_id = stable_id(kind, uri, digest)
-    run.write(LineageBatch(artifacts=[ArtifactRecord(artifact_id=artifact_id, kind=kind, uri=uri, sha256=digest,
-                                                     bytes=path.stat().st_size,
-                                                     attrs={**attrs, "registered_by": "train"})]))
-    return artifact_id, None
+def _known(run: RunContext, kind: str, path: Path, root: Path, what: str, hint: str) -> tuple[str, str | None]:
+    """(artifact id, manifest hash) of an input file, hashed once and checked against lineage:
+    TamperedArtifact when its bytes changed, InvalidInput (``hint``) when lineage never saw it."""
+    artifact_id, mh, _ = verified_file(run.warehouse, root, path, kind, what, hint)
+    return artifact_id, mh
 
 
 def tokenizer_checkpoint(run: RunContext, tokenizer: str | None) -> tuple[Path, str, TokenizerConfig]:
@@ -69,7 +63,7 @@ def tokenizer_checkpoint(run: RunContext, tokenizer: str | None) -> tuple[Path, 
 
 
 def tokenizer_folder(run: RunContext, tokenizer: str | None, variant: str | None = "discrete") -> tuple[Path, str]:
-    """(folder, artifact id) of a tokenizer checkpoint: a folder (recorded in lineage if new),
+    """(folder, artifact id) of a tokenizer checkpoint, its weights checked against lineage: a folder,
     an id prefix of one of ``variant`` (any variant when None) in lineage, or None for the newest
     one with token shards."""
     root = run.settings.data_root.resolve()
@@ -77,21 +71,25 @@ def tokenizer_folder(run: RunContext, tokenizer: str | None, variant: str | None
         folder = Path(tokenizer).resolve()
         if not (folder / tokens.CONFIG_FILE).is_file():
             raise FileNotFoundError(f"{tokenizer}: not a tokenizer checkpoint folder (no {tokens.CONFIG_FILE})")
-        checkpoint_id, _ = _known(run, "checkpoint", folder / tokens.WEIGHTS_FILE, root, {"model": "tokenizer"})
+        if not (folder / tokens.WEIGHTS_FILE).is_file():
+            raise CheckpointError(f"{folder}: no {tokens.WEIGHTS_FILE}")
+        checkpoint_id, _ = _known(run, "checkpoint", folder / tokens.WEIGHTS_FILE, root, "tokenizer checkpoint",
+                                  "train on a tokenizer `worldline tokenize` trained")
         return folder, checkpoint_id
     if tokenizer and not is_hex_id(tokenizer):
         raise FileNotFoundError(f"{tokenizer}: no such checkpoint folder, and not a checkpoint id")
     which = tokenizer_condition(variant)
     if tokenizer:
         checkpoint_id, uri = checkpoint_by_id(run.warehouse, tokenizer, which,
-                                              f"{variant} tokenizer" if variant else "tokenizer")
-        return (root / uri).parent, checkpoint_id
-    _, rows = run.warehouse.query(f"SELECT artifact_id, uri FROM artifacts WHERE kind = 'checkpoint' AND {which} AND "
+                                              f"{variant} tokenizer" if variant else "tokenizer", root)
+        return integrity.path_of(uri, root).parent, checkpoint_id
+    _, rows = run.warehouse.query(f"SELECT artifact_id FROM artifacts WHERE kind = 'checkpoint' AND {which} AND "
                                   "artifact_id IN (SELECT parent_id FROM edges WHERE relation = 'encoded_by') "
                                   "ORDER BY recorded_at DESC, artifact_id LIMIT 1")
     if not rows:
         raise FileNotFoundError("no discrete tokenizer with token shards in lineage: run `worldline tokenize` first")
-    return (root / rows[0][1]).parent, rows[0][0]
+    checkpoint_id, uri = checkpoint_by_id(run.warehouse, rows[0][0], which, "tokenizer", root)
+    return integrity.path_of(uri, root).parent, checkpoint_id
 
 
 def token_inputs(run: RunContext, tokenizer_id: str, token_shards: str | None):
@@ -103,13 +101,32 @@ def token_inputs(run: RunContext, tokenizer_id: str, token_shards: str | None):
     files = data.find_shards([place])
     if not files:
         raise FileNotFoundError(f"{place}: no token shards (run `worldline tokenize` first)")
-    shards = [(path, *_known(run, "token_shard", path, root, {})) for path in files]
+    shards = [(path, *_known(run, "token_shard", path, root, "token shard",
+                             "train reads token shards `worldline tokenize` wrote")) for path in files]
+    check_sources(run, [s for _, s, _ in shards], root)
     sequences = load_tokens(files, root)
     grids = {s.codes.shape[1:] for s in sequences}
     sizes = {s.info["size"] for s in sequences}
     if len(grids) != 1 or len(sizes) != 1:
         raise ValueError(f"token shards mix latent grids {sorted(grids)} or frame sizes {sorted(sizes)}")
     return shards, sequences, grids.pop(), sizes.pop()
+
+
+def check_sources(run: RunContext, token_ids: list[str], root: Path) -> None:
+    """The curated shards the token shards' captions come from, checked against lineage where
+    they are still there (a shard gone since is read as no captions, as before)."""
+    for row in claims.parents(run.warehouse, token_ids, "tokens_of"):
+        source = integrity.Recorded(*row)
+        if (path := integrity.path_of(source.uri, root)).is_file():
+            integrity.check(path, source)
+
+
+def check_episode_videos(run: RunContext, folders: list[Path], camera: str | None, root: Path) -> None:
+    """Each camera video post-training will encode, checked against lineage before it is read."""
+    for folder in folders:
+        for name in [camera] if camera else data.read_meta(folder).get("cameras", []):
+            if (video := folder / f"{name}.mp4").is_file():
+                _known(run, "episode_video", video, root, "episode video", "post-train on `worldline simulate`'s episodes")
 
 
 def episode_folders(manifest: str, root: Path):
@@ -285,10 +302,13 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                  "params": params, "tokenizer_id": tok_id})))
             print(f"pre-trained {preset_name} on {len(sequences)} token sequences for {pretrain_steps} steps: "
                   f"loss {pre_history[-1]['loss']:.3f}, accuracy {pre_history[-1]['accuracy']:.3f}")
+        else:  # trained by an earlier run: post-training reads it, so it must still be those bytes
+            verified_checkpoint(run.warehouse, root, pre_folder)
 
         # -- post-training: episodes with their actions, from the pre-trained weights
         t0 = time.perf_counter()
-        episodes = [(folder, *_known(run, "episode", folder / "steps.parquet", root, {})) for folder in folders]
+        episodes = [(folder, *_known(run, "episode", folder / "steps.parquet", root, "episode",
+                                     "post-train on `worldline simulate`'s episodes")) for folder in folders]
         episode_hashes = {mh for *_, mh in episodes if mh}
         post_mh = run.manifest_hash or (episode_hashes.pop() if len(episode_hashes) == 1 else None)
         episode_ids = sorted(e for _, e, _ in episodes)
@@ -299,6 +319,7 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
         post_history: list[dict] = []
         episode_sequences: list[data.CodeSequence] = []
         if run.pending(STAGE_POSTTRAIN, [pkey]) or not (post_folder / checkpoints.WEIGHTS_FILE).exists():
+            check_episode_videos(run, folders, camera, root)
             texts = {f: t for found, source in sources for f, t in _episode_texts(run, found, source).items()}
             futures = [encode_episode.submit(folder, tok_folder, tok_id, size, [camera] if camera else None,
                                              model_config.action_dim, texts[folder], root, post_config.action_totals)

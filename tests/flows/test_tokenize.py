@@ -102,3 +102,62 @@ def test_cli_refuses_bad_tokenize_arguments(tmp_path):
     assert crop.exit_code == 2 and "--crop: 20" in crop.output
     big = runner.invoke(app, ["tokenize", str(tmp_path), "--crop", "128"])
     assert big.exit_code == 2 and "larger than --size" in big.output
+
+
+def _flip(path, at: float = 0.5) -> None:
+    data = bytearray(path.read_bytes())
+    data[int(len(data) * at)] ^= 0xFF
+    path.write_bytes(bytes(data))
+
+
+def _counts() -> dict:
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        return {k: v for k, v in wh.counts().items() if k not in ("runs",)}
+
+
+def test_tokenize_refuses_a_changed_shard_and_one_curate_never_wrote(prefect_harness, data_root, inbox, tmp_path):
+    """Issue 26: a shard whose bytes changed trained a tokenizer and was registered as a new,
+    parentless artifact, so the checkpoint's ancestry lost its clips and raw video."""
+    from schemas.errors import InvalidInput, TamperedArtifact
+
+    folder, config = inbox
+    curated = curate([str(folder)], str(MANIFEST), str(config))
+    shard = data_root / curated["shards"][0]
+    _flip(shard)
+    before = _counts()
+    with pytest.raises(TamperedArtifact) as caught:
+        tokenize(curated["manifest_hash"], "tiny-dv4x8x8", steps=3, size=32, batch_size=2)
+    message = str(caught.value)
+    assert "\n" not in message and message.startswith(f"{shard}: sha256 ") and "run `worldline verify`" in message
+    assert _counts() == before  # nothing registered, nothing trained
+    assert not (data_root / "checkpoints").exists()
+
+    stranger = tmp_path / "elsewhere" / "part-00000.parquet"  # bytes lineage never recorded, outside the root
+    stranger.parent.mkdir()
+    stranger.write_bytes(shard.read_bytes())
+    with pytest.raises(InvalidInput, match=f"{stranger}: lineage has no curated shard with these bytes"):
+        tokenize(str(stranger.parent), "tiny-dv4x8x8", steps=3, size=32, batch_size=2)
+    assert _counts() == before
+
+
+def test_curate_encodes_a_changed_clip_again_instead_of_sharding_it(prefect_harness, data_root, inbox):
+    """Issue 26: a re-run reused clip files whose encode stage was done and re-hashed whatever
+    was on disk into new shards. Now a reused clip must match lineage; one that does not is
+    encoded again from its (intact) source, which restores the recorded bytes."""
+    folder, config = inbox
+    curated = curate([str(folder)], str(MANIFEST), str(config))
+    clips = sorted((data_root / "clips").rglob("*.mp4"))
+    assert clips
+    recorded = {c: c.read_bytes() for c in clips}
+    shards_before = {s: (data_root / s).read_bytes() for s in curated["shards"]}
+    clips[0].write_bytes(clips[-1].read_bytes() if len(clips) > 1 else b"not the clip" * 100)  # swapped
+
+    again = curate([str(folder)], str(MANIFEST), str(config))
+    assert again["status"] == "completed" and again["clips"] == curated["clips"]
+    assert {c: c.read_bytes() for c in clips} == recorded  # encoded again: the bytes lineage recorded
+    assert sorted(again["shards"]) == sorted(curated["shards"])
+    assert {s: (data_root / s).read_bytes() for s in again["shards"]} == shards_before
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, shards = wh.query("SELECT count(*) FROM artifacts WHERE kind = 'shard'")
+    assert shards == [(len(curated["shards"]),)]
+    assert lineage_problems(Settings().warehouse_path) == {}
