@@ -16,9 +16,10 @@ from flows.runners import task_runner
 from schemas import paths
 from schemas.hashing import sha256_file, stable_id
 from schemas.manifest import ScenarioManifest
+from schemas.errors import EnvironmentFault
 from schemas.records import ClipRecord, LineageBatch, StageRunRecord
 from schemas.settings import Settings
-from tasks import manifests
+from tasks import faults, manifests
 from tasks.curate import analyse, dedup, lineage, shards
 from tasks.curate.config import CurateConfig, load_config
 from tasks.curate.decode import DecodeError
@@ -26,6 +27,7 @@ from tasks.curate.encode import encode_clips
 from tasks.curate.inputs import Input, damage, decode_reason, discover
 from tasks.guard import clip as face_guard
 from tasks.guard.lineage import face_decisions
+from warehouse import migrate
 
 load_manifest = task(manifests.load, name="load-manifest")
 analyse_video = task(analyse.analyse_video, name="analyse-video", retries=0)
@@ -37,16 +39,17 @@ guard_clips = task(face_guard.guard_clips, name="guard-faces", retries=1)
 def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: float, **attrs) -> StageRunRecord:
     return StageRunRecord(stage_run_id=run.stage_run_id(stage, key), run_id=run.run_id, stage=stage, input_key=key,
                           manifest_hash=run.manifest_hash, n_in=n_in, n_out=n_out,
-                          seconds=round(time.perf_counter() - t0, 3), attrs=attrs)
+                          seconds=round(time.perf_counter() - t0, 3), attrs=paths.escaped(attrs))
 
 
 def _quarantine(run: RunContext, item: Input, stage: str, reason: str, detail: str) -> None:
-    key = stable_id("quarantine", str(item.path), item.sha256 or "")
-    record = _stage(run, stage, key, 1, 0, time.perf_counter(), source=str(item.path), reason=reason)
+    source, detail = paths.escaped(item.path), paths.escaped(detail)
+    key = stable_id("quarantine", source, item.sha256 or "")
+    record = _stage(run, stage, key, 1, 0, time.perf_counter(), source=source, reason=reason)
     run.write(LineageBatch(stage_runs=[record.model_copy(update={"status": "failed"})]).extend(
-        lineage.quarantined(str(item.path), item.sha256, stage, reason, detail, run.manifest_hash, record.stage_run_id)))
-    run.fail_input(f"{item.path}: {detail}")
-    print(f"quarantined {item.path}: {detail}")
+        lineage.quarantined(source, item.sha256, stage, reason, detail, run.manifest_hash, record.stage_run_id)))
+    run.fail_input(f"{source}: {detail}")
+    print(f"quarantined {source}: {detail}")
 
 
 def analyse_all(run: RunContext, inputs: list[Input], config: CurateConfig,
@@ -89,10 +92,14 @@ def _analysed(run: RunContext, item: Input, future) -> analyse.VideoAnalysis | N
     """The analysis of one input, or None when the input is quarantined instead."""
     try:
         result = future.result()
+    except EnvironmentFault:
+        raise  # the machine's fault (a full disk): the run stops, the input is not blamed
     except DecodeError as exc:
         _quarantine(run, item, "decode", decode_reason(str(exc)), str(exc))
         return None
     except Exception as exc:  # a batch never dies on one video
+        if (fault := faults.disk_full(exc, item.path, "analysing")) is not None:
+            raise fault from exc
         _quarantine(run, item, "analyse", type(exc).__name__, f"{item.path}: {exc}")
         return None
     if (damaged := damage(result.decode)) is not None:
@@ -136,6 +143,7 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
         by_source[clip.source_uri].append(clip)
     config = config.for_batch(len(by_source), run.settings.workers)
     futures, out = [], []
+    encodings = {}  # key -> the encode task, whose own failure the guard task's hides
     for source, group in sorted(by_source.items()):
         group.sort(key=lambda c: c.start_frame)
         targets = [paths.resolve(root, paths.CLIP_FILE, source_id=c.source_id, clip_id=c.clip_id) for c in group]
@@ -144,7 +152,7 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
             out.extend(_with_file(c, t, root) for c, t in zip(group, targets))
             continue
         spans = [(c.start_frame, c.end_frame) for c in group]
-        encoded = encode_video.submit(source, spans, targets, config.encode)
+        encoded = encodings[key] = encode_video.submit(source, spans, targets, config.encode)
         guarded = guard_clips.submit(targets, config.guard, config.encode, wait_for=[encoded])
         futures.append((key, group, targets, time.perf_counter(), guarded))
     with progress(len(futures), "encode kept clips") as bar:
@@ -152,7 +160,13 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
             try:
                 faces = future.result()
             except Exception as exc:
-                run.fail_input(f"{group[0].source_uri}: encoding failed: {exc}")
+                cause = encodings[key].result(raise_on_failure=False)  # why the guard never ran, if it did not
+                cause = cause if isinstance(cause, BaseException) else exc
+                if isinstance(cause, EnvironmentFault):
+                    raise cause from None  # a full disk: the run stops, the source is not to blame
+                if (fault := faults.disk_full(cause, targets[0].parent, "encoding clips")) is not None:
+                    raise fault from cause
+                run.fail_input(paths.escaped(f"{group[0].source_uri}: encoding failed: {exc}"))
                 continue
             finally:
                 bar.advance()
@@ -173,6 +187,17 @@ def _with_file(clip: ClipRecord, target: Path, root: Path, faces=()) -> ClipReco
                                    "bytes": target.stat().st_size, "tags": tags})
 
 
+def rename_legacy_shards(run: RunContext) -> None:
+    """Old-layout shards (``part-NNNNN.parquet``, which a later run into the bucket overwrote:
+    issue 26) move to their names by content, their rows first; nothing is deleted."""
+    root = run.settings.data_root
+    for old in shards.legacy_shards(root):
+        known = migrate.rename_shard(run.warehouse, old.uri, old.new_uri, old.sha256)
+        shards.rename_legacy(root, old)
+        print(f"renamed shard {old.uri} to {old.new_uri}"
+              + ("" if known else " (no lineage row has its bytes: a shard no run recorded, or one whose row was lost)"))
+
+
 def publish(run: RunContext, counts: Counter, n_shards: int, inputs: int) -> str:
     table = markdown_table(("stage", "outcome", "clips"), [(s, o, n) for (s, o), n in sorted(counts.items())])
     return publish_report("curate", f"{inputs} inputs, {len(run.failures)} quarantined, {n_shards} shards", table,
@@ -187,8 +212,9 @@ def curate(inputs: list[str], manifest: str | None = None, config: str | None = 
     cfg = load_config(Path(config) if config else None)
     scenario = load_manifest(Path(manifest)) if manifest else None
     with recorded_run("curate", settings, scenario, source_uri=manifest,
-                      params={"inputs": inputs, "manifest": manifest, "config": config}) as run:
+                      params=paths.escaped({"inputs": inputs, "manifest": manifest, "config": config})) as run:
         shards.remove_stale_temporaries(settings.data_root)  # left by a killed run; we hold the writer lock
+        rename_legacy_shards(run)
         found = discover(inputs)
         for item in found:
             if item.problem:
