@@ -19,7 +19,7 @@ from schemas.manifest import ScenarioManifest
 from schemas.errors import EnvironmentFault
 from schemas.records import ClipRecord, LineageBatch, StageRunRecord
 from schemas.settings import Settings
-from tasks import faults, manifests
+from tasks import faults, integrity, manifests
 from tasks.curate import analyse, dedup, lineage, shards
 from tasks.curate.config import CurateConfig, load_config
 from tasks.curate.decode import DecodeError
@@ -27,6 +27,7 @@ from tasks.curate.encode import encode_clips
 from tasks.curate.inputs import Input, damage, decode_reason, discover
 from tasks.guard import clip as face_guard
 from tasks.guard.lineage import face_decisions
+from warehouse import integrity as claims
 from warehouse import migrate
 
 load_manifest = task(manifests.load, name="load-manifest")
@@ -148,15 +149,19 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
         group.sort(key=lambda c: c.start_frame)
         targets = [paths.resolve(root, paths.CLIP_FILE, source_id=c.source_id, clip_id=c.clip_id) for c in group]
         key = stable_id("encode", group[0].source_id, config.encode_hash(), *(c.clip_id for c in group))
+        redo = False
         if not run.pending("encode", [key]) and all(t.exists() for t in targets):
-            out.extend(_with_file(c, t, root) for c, t in zip(group, targets))
-            continue
+            reused = _reused(run, group, targets, root)
+            if reused is not None:
+                out.extend(reused)
+                continue
+            redo = True  # a clip file changed since: encode the source's spans again (issue 26)
         spans = [(c.start_frame, c.end_frame) for c in group]
         encoded = encodings[key] = encode_video.submit(source, spans, targets, config.encode)
         guarded = guard_clips.submit(targets, config.guard, config.encode, wait_for=[encoded])
-        futures.append((key, group, targets, time.perf_counter(), guarded))
+        futures.append((key, group, targets, time.perf_counter(), guarded, redo))
     with progress(len(futures), "encode kept clips") as bar:
-        for key, group, targets, t0, future in futures:
+        for key, group, targets, t0, future, redo in futures:
             try:
                 faces = future.result()
             except Exception as exc:
@@ -171,6 +176,9 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
             finally:
                 bar.advance()
             encoded = [_with_file(c, t, root, found) for c, t, found in zip(group, targets, faces)]
+            if redo and (differs := _differs(run, encoded, targets)):
+                run.fail_input(differs)
+                continue
             stage = _stage(run, "encode", key, len(group), len(encoded), t0, source=group[0].source_uri,
                            faces_hidden=sum(len(found) for found in faces))
             batch = LineageBatch(stage_runs=[stage]).extend(lineage.clips(encoded, stage.stage_run_id))
@@ -181,9 +189,38 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
     return out
 
 
-def _with_file(clip: ClipRecord, target: Path, root: Path, faces=()) -> ClipRecord:
+def _reused(run: RunContext, group: list[ClipRecord], targets: list[Path], root: Path) -> list[ClipRecord] | None:
+    """The clips of a source encoded before, each file hashed once and checked against the
+    sha256 lineage recorded for it; None when one differs (or lineage has none), so the source
+    is encoded again: its bytes are intact (the clip ids hash them), and with a fixed thread
+    count x264 writes the same clips, so encoding again restores what lineage recorded."""
+    recorded = claims.recorded(run.warehouse, [c.clip_id for c in group])
+    out = []
+    for clip, target in zip(group, targets):
+        digest = integrity.file_sha256(target)
+        row = recorded.get(clip.clip_id)
+        if row is None or integrity.Recorded(*row).sha256 != digest:
+            want = f"lineage's {row[3][:12]}" if row is not None else "no sha256 in lineage"
+            print(f"{target}: sha256 {digest[:12]} differs from {want}; encoding {clip.source_uri} again")
+            return None
+        out.append(_with_file(clip, target, root, sha256=digest))
+    return out
+
+
+def _differs(run: RunContext, encoded: list[ClipRecord], targets: list[Path]) -> str | None:
+    """Why clips encoded again to replace changed files still differ from lineage, or None."""
+    recorded = claims.recorded(run.warehouse, [c.clip_id for c in encoded])
+    for clip, target in zip(encoded, targets):
+        if (row := recorded.get(clip.clip_id)) is not None and row[3] != clip.sha256:
+            return (f"{target}: changed since lineage recorded it, and encoding it again gave sha256 "
+                    f"{clip.sha256[:12]}, not lineage's {row[3][:12]}; its source's clips are left out of the shards")
+    return None
+
+
+def _with_file(clip: ClipRecord, target: Path, root: Path, faces=(), sha256: str | None = None) -> ClipRecord:
+    """The clip with its file's uri, size and sha256 (``sha256`` when the caller hashed it already)."""
     tags = (*clip.tags, "guard:faces_hidden") if faces else clip.tags
-    return clip.model_copy(update={"uri": str(target.relative_to(root)), "sha256": sha256_file(str(target)),
+    return clip.model_copy(update={"uri": str(target.relative_to(root)), "sha256": sha256 or sha256_file(str(target)),
                                    "bytes": target.stat().st_size, "tags": tags})
 
 
