@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import re
 from pathlib import Path
 
 WAREHOUSE_FILE = "lineage.duckdb"
@@ -19,7 +21,13 @@ CORPUS_TRUTH = "corpus/seed_{seed:06d}/raw_{index:04d}.truth.json"
 
 ANALYSIS_FILE = "analysis/{sha256:.2}/{sha256}-{config_hash:.16}.json"
 CLIP_FILE = "clips/{source_id:.2}/{clip_id}.mp4"
-SHARD_FILE = "shards/{manifest_hash:.12}/{resolution}/{length}/part-{index:05d}.parquet"
+SHARDS_OF_MANIFEST = "shards/{manifest_hash:.12}"
+SHARD_DIR = SHARDS_OF_MANIFEST + "/{resolution}/{length}"
+# Named by content (issue 26): two runs writing one bucket never overwrite each other's files,
+# and a re-run of the same clips writes the same bytes under the same name.
+SHARD_FILE = SHARD_DIR + "/part-{index:05d}-{sha256:.16}.parquet"
+# The name shards had before issue 26; curate renames such files to SHARD_FILE when it starts.
+LEGACY_SHARD_NAME = re.compile(r"part-(?P<index>\d{5})\.parquet")
 SHARD_MAX_BYTES = 256 * 1024 * 1024
 SHARD_MAX_CLIPS = 1000
 
@@ -45,3 +53,29 @@ DERIVED_MANIFEST_FILE = "manifests/derived/{manifest_hash:.12}.yaml"
 
 def resolve(root: Path, template: str, **fields) -> Path:
     return Path(root) / template.format(**fields)
+
+
+def escaped(value):
+    """``value`` with every undecodable filename byte written as a ``\\xff`` escape.
+
+    A name that is not UTF-8 comes from the OS as a str holding lone surrogates
+    ("surrogateescape"); neither DuckDB nor JSON nor a terminal takes those. Every path that
+    enters a record or a message passes through here; the file itself is still opened by its
+    real bytes. Strings, bytes and paths are escaped, dicts, lists and tuples item by item; anything
+    else is returned as it is.
+    """
+    if isinstance(value, os.PathLike):
+        value = os.fspath(value)
+    if isinstance(value, bytes):
+        return value.decode("utf-8", "backslashreplace")
+    if isinstance(value, str):
+        try:
+            raw = value.encode("utf-8", "surrogateescape")
+        except UnicodeEncodeError:  # a surrogate no OS name decodes to: escape it as it is
+            raw = value.encode("utf-8", "backslashreplace")
+        return raw.decode("utf-8", "backslashreplace")
+    if isinstance(value, dict):
+        return {escaped(k): escaped(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(escaped(v) for v in value)
+    return value

@@ -311,3 +311,22 @@ def curate_on(flow, root: Path, monkeypatch, inbox: Path) -> tuple[dict, dict[st
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         _, rows = wh.query(RUNNER_LINEAGE)
     return summary, shard_digests(root), rows
+
+
+# -- file names that are not UTF-8 (issue 26) -------------------------------------------------
+def undecodable_name(folder: Path, name: bytes) -> Path:
+    """``folder / name`` for a name that is not UTF-8 (e.g. ``b"bad\\xff.mp4"``), as the OS lists
+    it: a str with surrogate escapes (``os.fsdecode``); its real bytes open the file."""
+    return Path(os.fsdecode(os.path.join(os.fsencode(folder), name)))
+
+
+def rename_to(path: Path, name: bytes) -> Path:
+    """Rename ``path`` inside its folder to the raw bytes ``name``; returns the new path."""
+    target = undecodable_name(Path(path).parent, name)
+    os.rename(os.fsencode(path), os.fsencode(target))
+    return target
+
+
+def escaped_name(path: Path) -> str:
+    """How lineage and messages write ``path``: undecodable bytes as ``\\xff`` escapes."""
+    return os.fsencode(path).decode("utf-8", "backslashreplace")

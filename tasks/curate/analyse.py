@@ -20,6 +20,7 @@ import numpy as np
 
 from schemas.manifest import ScenarioManifest
 from schemas.records import ClipRecord, clip_id, raw_video_id
+from tasks import faults
 from tasks.curate import dedup
 from tasks.curate.captions import CaptionConfig, CaptionContext, make_captioner
 from tasks.curate.config import CurateConfig
@@ -152,10 +153,17 @@ def exact_for(spans: Mapping[str, tuple[str | Path, int, int]], config: CurateCo
 
 
 def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write through a temporary renamed into place; the temporary is gone on every way out, and
+    a full disk stops the run (``EnvironmentFault``) rather than blaming the video."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_bytes(data)
-    os.replace(tmp, path)
+    with faults.fatal_when_disk_full(tmp, "saving the analysis"):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            tmp.write_bytes(data)
+            faults.point("analysis", tmp)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
 
 
 def save(analysis: VideoAnalysis, json_path: Path) -> None:

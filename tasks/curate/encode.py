@@ -97,13 +97,19 @@ def output_size(info: SourceInfo) -> tuple[int, int]:
 
 
 class _Writer:
-    """An open output clip: encoder, muxer and temporary path."""
+    """An open output clip: encoder, muxer and temporary path. On a full disk each step raises
+    ``EnvironmentFault`` naming the clip (the run stops; the source video is not to blame)."""
 
     def __init__(self, out: Path, info: SourceInfo, src_stream, config: EncodeConfig):
         self.out = Path(out)
-        self.out.parent.mkdir(parents=True, exist_ok=True)
         self.tmp = self.out.with_name(f".{self.out.name}.{os.getpid()}.tmp")
-        self.container = av.open(str(self.tmp), "w", format="mp4")
+        with faults.fatal_when_disk_full(self.tmp, "encoding clips"):
+            self.out.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                self.container = av.open(str(self.tmp), "w", format="mp4")
+            except BaseException:
+                self.tmp.unlink(missing_ok=True)
+                raise
         self.width, self.height = output_size(info)
         self.stream = self.container.add_stream("libx264", rate=Fraction(info.fps).limit_denominator(1001))
         self.stream.width, self.stream.height, self.stream.pix_fmt = self.width, self.height, "yuv420p"
@@ -124,33 +130,39 @@ class _Writer:
         frame.pts = pts - self.first_pts
         frame.pict_type = PictureType.NONE  # else x264 copies the source's frame types
         try:
-            for packet in self.stream.encode(frame):
-                self.container.mux(packet)
+            with faults.fatal_when_disk_full(self.tmp, "encoding clips"):
+                for packet in self.stream.encode(frame):
+                    self.container.mux(packet)
         finally:
             frame.pts = pts
         self.frames += 1
 
     def close(self, start: int, end: int) -> EncodedClip:
-        for packet in self.stream.encode():
-            self.container.mux(packet)
-        self.container.close()
-        if self.frames == 0:
-            self.tmp.unlink(missing_ok=True)
-            raise DecodeError(f"{self.out}: no frame of the span [{start}, {end}) could be decoded")
-        digest = hashlib.sha256()
-        with open(self.tmp, "rb") as handle:
-            for block in iter(lambda: handle.read(1 << 20), b""):
-                digest.update(block)
-        size = self.tmp.stat().st_size
-        faults.point("clip")  # crash tests: a whole clip in its temporary file, not yet renamed
-        os.replace(self.tmp, self.out)
+        """Finish the clip and rename it into place; on any failure the temporary is removed."""
+        try:
+            with faults.fatal_when_disk_full(self.tmp, "encoding clips"):
+                for packet in self.stream.encode():
+                    self.container.mux(packet)
+                self.container.close()
+                if self.frames == 0:
+                    raise DecodeError(f"{self.out}: no frame of the span [{start}, {end}) could be decoded")
+                digest = hashlib.sha256()
+                with open(self.tmp, "rb") as handle:
+                    for block in iter(lambda: handle.read(1 << 20), b""):
+                        digest.update(block)
+                size = self.tmp.stat().st_size
+                faults.point("clip", self.tmp)  # crash tests: a whole clip in its temporary file, not yet renamed
+                os.replace(self.tmp, self.out)
+        except BaseException:
+            self.abort()
+            raise
         return EncodedClip(path=self.out, sha256=digest.hexdigest(), bytes=size, frames=self.frames,
                            width=self.width, height=self.height, start_frame=start, end_frame=end)
 
     def abort(self) -> None:
         try:
             self.container.close()
-        except av.FFmpegError:
+        except (av.FFmpegError, OSError):  # a full disk again, or closed already
             pass
         self.tmp.unlink(missing_ok=True)
 

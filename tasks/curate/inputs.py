@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from schemas.hashing import sha256_file
+from tasks import faults
 from tasks.curate.config import VIDEO_SUFFIXES
 
 
@@ -57,6 +58,8 @@ def _check(path: Path) -> Input:
     except PermissionError as exc:
         return _bad(path, "permission_denied", f"permission denied: {exc.strerror or exc}")
     except OSError as exc:
+        if (fault := faults.disk_full(exc, path, "reading inputs")) is not None:
+            raise fault from exc  # the machine's fault, not the input's: never quarantined
         if "too many levels of symbolic links" in str(exc).lower():
             return _bad(path, "symlink_loop", f"symlink loop: {exc.strerror or exc}")
         return _bad(path, "unreadable", f"cannot read: {exc.strerror or exc}")

@@ -1,8 +1,12 @@
-"""Lineage records of a curation run: raw videos, clips kept and rejected, quarantined inputs."""
+"""Lineage records of a curation run: raw videos, clips kept and rejected, quarantined inputs.
+
+Paths enter records through ``schemas.paths.escaped``: a file name that is not UTF-8 is
+recorded with ``\\xff``-style escapes (issue 26)."""
 
 from __future__ import annotations
 
 from schemas.hashing import stable_id
+from schemas.paths import escaped
 from schemas.records import ArtifactRecord, ClipRecord, EdgeRecord, LineageBatch, MetricRecord, RejectionRecord, raw_video_id
 
 
@@ -15,8 +19,9 @@ def _clip_attrs(clip: ClipRecord) -> dict:
 
 def raw_video(source: str, sha256: str, size: int, manifest_hash: str | None, stage_run_id: str,
               attrs: dict | None = None) -> LineageBatch:
-    art = ArtifactRecord(artifact_id=raw_video_id(sha256), kind="raw_video", uri=source, sha256=sha256, bytes=size,
-                         manifest_hash=manifest_hash, stage_run_id=stage_run_id, attrs=attrs or {})
+    art = ArtifactRecord(artifact_id=raw_video_id(sha256), kind="raw_video", uri=escaped(source), sha256=sha256,
+                         bytes=size, manifest_hash=manifest_hash, stage_run_id=stage_run_id,
+                         attrs=escaped(attrs or {}))
     batch = LineageBatch(artifacts=[art])
     if manifest_hash:
         batch.edges.append(EdgeRecord(parent_id=manifest_hash, child_id=art.artifact_id, relation="curated_under"))
@@ -26,6 +31,7 @@ def raw_video(source: str, sha256: str, size: int, manifest_hash: str | None, st
 def quarantined(source: str, sha256: str | None, stage: str, reason: str, detail: str,
                 manifest_hash: str | None, stage_run_id: str) -> LineageBatch:
     """An input that could not be curated: its artifact (by content when readable) and why."""
+    source, detail = escaped(source), escaped(detail)
     artifact_id = raw_video_id(sha256) if sha256 else stable_id("unreadable_input", source)
     art = ArtifactRecord(artifact_id=artifact_id, kind="raw_video", uri=source, sha256=sha256,
                          manifest_hash=manifest_hash, stage_run_id=stage_run_id, attrs={"quarantined": True})

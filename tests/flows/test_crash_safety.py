@@ -1,4 +1,5 @@
-"""Issue 5: SIGKILL the curate command at its crash points, run it again, and lose nothing.
+"""Issue 5: SIGKILL the curate command at its crash points, run it again, and lose nothing;
+issue 26: a full disk stops the run naming the file, blames no input, leaves no temporary.
 
 One folder (three good videos and one unreadable file) is curated without interruption in
 this process, and in a second data root by ``worldline curate`` processes that are killed in
@@ -10,11 +11,17 @@ no duplicate or orphan row and no stray file.
 
 from __future__ import annotations
 
+import os
+import re
 import signal
+import subprocess
 from pathlib import Path
 
 import pytest
 
+from schemas.errors import EnvironmentFault
+from tasks import faults
+from tasks.curate.shards import SWEPT_FOLDERS
 from warehouse.store import Warehouse
 
 from tests.support import curate_command, good_videos, lineage_problems, sha256_of, shard_digests
@@ -83,3 +90,55 @@ def test_killed_runs_resume_to_identical_shards_and_clean_lineage(prefect_harnes
         runs = wh.query("SELECT status, message FROM runs ORDER BY started_at")[1]
     assert [s for s, _ in runs] == ["failed"] * len(KILLS) + ["partial"]
     assert all("interrupted" in m for _, m in runs[:-1])
+
+
+# -- a full disk (issue 26) --------------------------------------------------------------------
+def _temporaries(root: Path) -> list[str]:
+    return sorted(p.relative_to(root).as_posix() for folder in SWEPT_FOLDERS if (root / folder).is_dir()
+                  for p in (root / folder).rglob("*") if p.name.startswith("."))
+
+
+def _after_a_full_disk(root: Path, stage: str) -> None:
+    """What a run stopped by a full disk leaves: no temporary, only the broken input quarantined
+    (the good ones were not at fault), and the run failed with the one-line reason."""
+    assert _temporaries(root) == []
+    with Warehouse(root / "lineage.duckdb", read_only=True) as wh:
+        rejected = wh.query("SELECT a.uri FROM rejections r JOIN artifacts a USING (artifact_id) WHERE a.kind = 'raw_video'")[1]
+        (status, message), = wh.query("SELECT status, message FROM runs")[1]
+    assert [Path(uri).name for uri, in rejected] == ["broken.mp4"]
+    assert status == "failed" and message.endswith(f": disk full while {stage}"), message
+
+
+@pytest.mark.parametrize("point, stage", [("analysis", "saving the analysis"), ("clip", "encoding clips"),
+                                          ("shard", "writing shards")])
+def test_a_full_disk_stops_the_run_naming_the_file_and_blames_no_input(point, stage, prefect_harness, inbox, data_root,
+                                                                       monkeypatch):
+    """A full disk once ended curate with "1 of 1 inputs quarantined" and no reason (or a Prefect
+    500), and left a temporary behind."""
+    from flows.curate import curate
+
+    faults.reset()
+    monkeypatch.setenv(faults.ENV, f"enospc@{point}")
+    with pytest.raises(EnvironmentFault, match=rf"^{re.escape(str(data_root))}/\S+\.tmp: disk full while {stage}$"):
+        curate([str(inbox)])
+    _after_a_full_disk(data_root, stage)
+
+
+@pytest.mark.parametrize("folder, stage", [("clips", "encoding clips"), ("shards", "writing shards")])
+def test_a_real_full_disk_under_a_small_tmpfs(folder, stage, prefect_harness, inbox, data_root):
+    """The same on a real 4 kB file system (clips or shards on it; lineage beside it). Needs root
+    and a kernel that lets it mount tmpfs here: skipped otherwise."""
+    from flows.curate import curate
+
+    mount = data_root / folder
+    mount.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4k", "tmpfs", str(mount)],
+                                           capture_output=True).returncode != 0:
+        pytest.skip("cannot mount a tmpfs here (not root, or not allowed)")
+    try:
+        with pytest.raises(EnvironmentFault, match=rf"^{re.escape(str(mount))}/\S+: disk full while {stage}$"):
+            curate([str(inbox)])
+        _after_a_full_disk(data_root, stage)
+    finally:  # lazily when a file there is still open: never leave the mount behind
+        if subprocess.run(["umount", str(mount)], capture_output=True).returncode != 0:
+            subprocess.run(["umount", "-l", str(mount)], check=True)

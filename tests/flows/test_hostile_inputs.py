@@ -15,9 +15,11 @@ from typer.testing import CliRunner
 
 from flows.cli import app
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch
+from tasks.curate.shards import read_shard
 from warehouse.store import Warehouse
 
-from tests.support import MANIFESTS, REPO
+from tests.support import (MANIFESTS, REPO, curate_command, escaped_name, good_videos, lineage_problems, rename_to,
+                           scene_frames, write_video)
 
 runner = CliRunner()
 GOOD = (MANIFESTS / "conveyor_push.yaml").read_text()
@@ -158,3 +160,39 @@ def test_sql_injection_through_the_audit_command_is_inert(name, option, value, d
     assert result.output.strip() == "[]"  # the whole string was one bound value: it matches nothing
     with Warehouse(data_root / "lineage.duckdb", read_only=True) as wh:
         assert wh.counts() == before
+
+
+# -- file names that are not UTF-8 (issue 26) -------------------------------------------------
+def test_undecodable_file_names_are_curated_or_quarantined_and_recorded_escaped(prefect_harness, tmp_path):
+    """A name with an invalid UTF-8 byte once failed the whole batch (DuckDB: "Malformed JSON ...
+    invalid high surrogate", exit 1, nothing recorded). Now a good video under such a name is
+    curated, a broken one quarantined, and every record and message writes the name escaped."""
+    from prefect.settings import PREFECT_API_URL
+
+    inbox, root = tmp_path / "inbox", tmp_path / "root"
+    good_videos(inbox, seeds=(0,))
+    good = rename_to(write_video(inbox / "good.mp4", scene_frames(2)), b"good\xff.mp4")
+    (inbox / "junk.mp4").write_bytes(b"\x00junk" * 400)
+    junk = rename_to(inbox / "junk.mp4", b"junk\xfe.mp4")
+    done = curate_command([inbox], root, api_url=PREFECT_API_URL.value())
+    assert done.returncode == 1, done.stderr[-3000:]
+    assert done.stdout.splitlines()[-1].endswith("1 of 3 inputs quarantined"), done.stdout
+    assert f"quarantined {escaped_name(junk)}: " in done.stdout + done.stderr  # the flow's log
+
+    db = root / "lineage.duckdb"
+    with Warehouse(db, read_only=True) as wh:
+        raw = dict(wh.query("SELECT uri, attrs->>'quarantined' FROM artifacts WHERE kind = 'raw_video'")[1])
+        rejected = wh.query("SELECT a.uri, r.reason, r.detail FROM rejections r JOIN artifacts a USING (artifact_id) "
+                            "WHERE a.kind = 'raw_video'")[1]
+        sources = {r[0] for r in wh.query("SELECT attrs->>'source' FROM stage_runs WHERE stage = 'analyse'")[1]}
+        (params, message), = wh.query("SELECT params, message FROM runs")[1]
+        kept = {r[0] for r in wh.query("SELECT artifact_id FROM artifacts WHERE kind = 'clip' AND uri IS NOT NULL")[1]}
+    assert raw == {str(inbox / "good_0.mp4"): None, escaped_name(good): None, escaped_name(junk): "true"}
+    assert [(uri, reason) for uri, reason, _ in rejected] == [(escaped_name(junk), "unreadable")]
+    assert rejected[0][2].startswith(escaped_name(junk)) and message == "partial: 1 of 3 inputs failed"
+    assert sources == {str(inbox / "good_0.mp4"), escaped_name(good)}
+    assert str(inbox) in params
+    rows = [r for p in (root / "shards").rglob("*.parquet") for r in read_shard(p).select(["clip_id", "source_uri"]).to_pylist()]
+    assert {r["clip_id"] for r in rows} == kept and kept
+    assert {r["source_uri"] for r in rows} == {str(inbox / "good_0.mp4"), escaped_name(good)}
+    assert lineage_problems(db) == {}

@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import errno
+import os
 import signal
 import subprocess
 import sys
 
 import pytest
 
+from schemas.errors import EnvironmentFault
 from tasks import faults
 from tasks.curate.inputs import damage, decode_reason, discover, iso_truncation
 
@@ -64,8 +67,34 @@ def _point_twice(spec: str) -> subprocess.CompletedProcess:
 
 
 def test_fault_point_kills_at_the_named_hit_only():
-    assert faults.parse("shard:3") == ("shard", 3) and faults.parse("shard") == ("shard", 1) and faults.parse("") is None
+    assert faults.parse("shard:3") == ("shard", 3, "kill") and faults.parse("shard") == ("shard", 1, "kill")
+    assert faults.parse("") is None
     first, second, other = _point_twice("here"), _point_twice("here:2"), _point_twice("elsewhere")
     assert first.returncode == -signal.SIGKILL and first.stdout == ""
     assert second.returncode == -signal.SIGKILL and second.stdout == "one\n"
     assert other.returncode == 0 and other.stdout == "one\ntwo\n"
+
+
+def test_an_injected_full_disk_raises_from_the_named_hit_on(monkeypatch, tmp_path):
+    assert faults.parse("enospc@shard:2") == ("shard", 2, "enospc")
+    with pytest.raises(ValueError, match="unknown fault kind 'boom'"):
+        faults.parse("boom@shard")
+    faults.reset()
+    monkeypatch.setenv(faults.ENV, "enospc@here:2")
+    faults.point("here", tmp_path / "a")
+    faults.point("elsewhere")
+    for _ in range(2):  # a full disk stays full
+        with pytest.raises(OSError) as caught:
+            faults.point("here", tmp_path / "a")
+        assert caught.value.errno == errno.ENOSPC and caught.value.filename == str(tmp_path / "a")
+
+
+def test_a_full_disk_is_the_machines_fault_and_other_errors_pass(tmp_path):
+    with pytest.raises(EnvironmentFault, match=r"^/x/bad\\xff\.mp4: disk full while testing$") as caught:
+        with faults.fatal_when_disk_full(os.fsdecode(b"/x/bad\xff.mp4"), "testing"):
+            raise OSError(errno.EDQUOT, "Disk quota exceeded")
+    assert caught.value.exit_code == 5 and isinstance(caught.value.__cause__, OSError)
+    with pytest.raises(PermissionError):
+        with faults.fatal_when_disk_full(tmp_path, "testing"):
+            raise PermissionError(errno.EACCES, "Permission denied")
+    assert faults.disk_full(ValueError("no"), tmp_path, "testing") is None
