@@ -5,7 +5,9 @@ sorted inside a bucket by duration then clip id, and cut into files of at most
 ``max_clips`` rows and about ``max_bytes`` bytes under ``schemas.paths.SHARD_FILE``. Every file
 has the schema ``SHARD_SCHEMA``; ``read_shard`` refuses any other. The writer stores no
 timestamps and fixes compression, row-group size and column order, so the same clip records
-give the same bytes (checked by tests/tasks/curate/test_shards.py).
+give the same bytes (checked by tests/tasks/curate/test_shards.py). A file is named by its
+content (issue 26), so a later run into the same bucket adds files and never overwrites one;
+``legacy_shards`` finds files of the older ``part-NNNNN.parquet`` layout for curate to rename.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import os
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 
 import pyarrow as pa
@@ -20,7 +23,7 @@ import pyarrow.parquet as pq
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas import paths
-from schemas.hashing import stable_id
+from schemas.hashing import sha256_file, stable_id
 from schemas.records import ArtifactRecord, ClipRecord, EdgeRecord, LineageBatch, ShardRecord
 from tasks import faults
 
@@ -132,7 +135,7 @@ def _row(clip: ClipRecord, data: bytes | None) -> dict:
     return {
         "clip_id": clip.clip_id,
         "source_id": clip.source_id,
-        "source_uri": clip.source_uri,
+        "source_uri": paths.escaped(clip.source_uri),
         "start_frame": clip.start_frame,
         "end_frame": clip.end_frame,
         "start_s": clip.start_s,
@@ -154,25 +157,34 @@ def _row(clip: ClipRecord, data: bytes | None) -> dict:
     }
 
 
-def _write_atomic(table: pa.Table, path: Path, config: ShardConfig) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        # MP4 bytes do not compress: spend no time trying, and keep them out of dictionaries.
-        packed = [name for name in LEAF_COLUMNS if name != "clip_bytes"]
-        pq.write_table(
-            table, tmp,
-            compression={name: config.compression for name in packed} | {"clip_bytes": "none"},
-            compression_level={name: config.compression_level for name in packed},
-            row_group_size=config.row_group_rows, use_dictionary=["source_id", "source_uri", "manifest_hash"],
-            write_statistics=True,
-        )
-        _fsync(tmp)
-        faults.point("shard")  # crash tests: a whole shard in its temporary file, not yet renamed
-        os.replace(tmp, path)
-        _fsync(path.parent)  # the rename itself survives a power cut
-    finally:
-        tmp.unlink(missing_ok=True)
+def _write_named(table: pa.Table, root: Path, bucket: dict[str, str], index: int,
+                 config: ShardConfig) -> tuple[str, str]:
+    """Write part ``index`` of a bucket to a temporary, hash it and rename it to its name by
+    content (``SHARD_FILE``): no run overwrites another's shard. Returns (uri, sha256). The
+    temporary is gone on every way out; a full disk stops the run (``EnvironmentFault``)."""
+    folder = Path(root) / paths.SHARD_DIR.format(**bucket)
+    tmp = folder / f".part-{index:05d}.{os.getpid()}.tmp"
+    with faults.fatal_when_disk_full(tmp, "writing shards"):
+        folder.mkdir(parents=True, exist_ok=True)
+        try:
+            # MP4 bytes do not compress: spend no time trying, and keep them out of dictionaries.
+            packed = [name for name in LEAF_COLUMNS if name != "clip_bytes"]
+            pq.write_table(
+                table, tmp,
+                compression={name: config.compression for name in packed} | {"clip_bytes": "none"},
+                compression_level={name: config.compression_level for name in packed},
+                row_group_size=config.row_group_rows, use_dictionary=["source_id", "source_uri", "manifest_hash"],
+                write_statistics=True,
+            )
+            _fsync(tmp)
+            faults.point("shard", tmp)  # crash tests: a whole shard in its temporary file, not yet renamed
+            digest = sha256_file(str(tmp))
+            rel = paths.SHARD_FILE.format(**bucket, index=index, sha256=digest)
+            os.replace(tmp, Path(root) / rel)
+            _fsync(folder)  # the rename itself survives a power cut
+        finally:
+            tmp.unlink(missing_ok=True)
+    return rel, digest
 
 
 def _fsync(path: Path) -> None:
@@ -208,8 +220,37 @@ def remove_stale_temporaries(root: Path) -> list[Path]:
     return sorted(removed)
 
 
-def _sha256(path: Path) -> str:
-    return hashlib.sha256(path.read_bytes()).hexdigest()
+@dataclass(frozen=True)
+class LegacyShard:
+    """A shard under the name it had before issue 26 (``part-NNNNN.parquet``), which the next run
+    into its bucket would overwrite, and the name its content gives it now."""
+
+    uri: str  # root-relative POSIX paths
+    new_uri: str
+    sha256: str
+
+
+def legacy_shards(root: Path) -> list[LegacyShard]:
+    """Every old-layout shard under root's shard folder, sorted by path."""
+    found = []
+    for path in sorted((Path(root) / "shards").glob("*/*/*/*.parquet")):
+        named = paths.LEGACY_SHARD_NAME.fullmatch(path.name)
+        if named is None or not path.is_file():
+            continue
+        rel = path.relative_to(root)
+        _, manifest_hash, resolution, length, _ = rel.parts
+        digest = sha256_file(str(path))
+        new = paths.SHARD_FILE.format(manifest_hash=manifest_hash, resolution=resolution, length=length,
+                                      index=int(named["index"]), sha256=digest)
+        found.append(LegacyShard(uri=rel.as_posix(), new_uri=new, sha256=digest))
+    return found
+
+
+def rename_legacy(root: Path, shard: LegacyShard) -> None:
+    """Move an old-layout shard to its name by content. Nothing is deleted: a file already under
+    that name has the same bytes (the name says so), and a run killed half way renames again."""
+    os.replace(Path(root) / shard.uri, Path(root) / shard.new_uri)
+    _fsync((Path(root) / shard.new_uri).parent)
 
 
 def write_shards(
@@ -218,7 +259,8 @@ def write_shards(
     """Write the clips to Parquet shards under root and describe each file written.
 
     Clips marked ``kept=False`` are refused: shards hold curated clips only. Shard uris are
-    root-relative POSIX paths from ``schemas.paths.SHARD_FILE``.
+    root-relative POSIX paths from ``schemas.paths.SHARD_FILE``, named by their content: a
+    run never overwrites a shard of another run, and the same clips give the same file.
     """
     rejected = [c.clip_id for c in clips if not c.kept]
     if rejected:
@@ -243,14 +285,12 @@ def write_shards(
                 size = 0
             parts[-1].append(_row(clip, data))
             size += cost
+        bucket = {"manifest_hash": manifest_hash, "resolution": res, "length": length}
         for index, rows in enumerate(parts):
-            rel = paths.SHARD_FILE.format(manifest_hash=manifest_hash, resolution=res, length=length, index=index)
-            path = Path(root) / rel
-            _write_atomic(pa.Table.from_pylist(rows, schema=SHARD_SCHEMA), path, config)
-            digest = _sha256(path)
+            rel, digest = _write_named(pa.Table.from_pylist(rows, schema=SHARD_SCHEMA), root, bucket, index, config)
             records.append(ShardRecord(
                 shard_id=stable_id("shard", rel, digest), uri=Path(rel).as_posix(), sha256=digest,
-                bytes=path.stat().st_size, n_clips=len(rows), resolution_bucket=res, length_bucket=length,
+                bytes=(Path(root) / rel).stat().st_size, n_clips=len(rows), resolution_bucket=res, length_bucket=length,
                 clip_ids=tuple(r["clip_id"] for r in rows), manifest_hash=manifest_hash,
             ))
     return records

@@ -85,5 +85,14 @@ def usable_frames(n: int, temporal_compression: int, limit: int | None = None) -
     return 0 if n < 1 else 1 + (n - 1) // temporal_compression * temporal_compression
 
 
+def unique_clips(clips: Iterable[Clip]) -> list[Clip]:
+    """The first clip of each clip id, in order. Shards are named by content (issue 26), so two
+    curate runs over overlapping inputs leave one clip in two shards of a bucket; a reader of
+    the folder takes it once."""
+    seen: set[str] = set()
+    return [c for c in clips if not (c.clip_id in seen or seen.add(c.clip_id))]
+
+
 def frame_arrays(clips: Sequence[Clip]) -> list[np.ndarray]:
-    return [c.frames for c in clips]
+    """The frames of each clip id once (``unique_clips``): a clip in two shards trains once."""
+    return [c.frames for c in unique_clips(clips)]

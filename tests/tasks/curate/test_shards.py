@@ -13,12 +13,17 @@ import pytest
 from schemas import paths
 from schemas.hashing import stable_id
 from schemas.records import ClipRecord
+from schemas.errors import EnvironmentFault
+from tasks import faults
 from tasks.curate.shards import (
     SHARD_SCHEMA,
     ShardConfig,
     ShardError,
+    legacy_shards,
     length_bucket,
     read_shard,
+    remove_stale_temporaries,
+    rename_legacy,
     resolution_bucket,
     shard_lineage,
     write_shards,
@@ -70,7 +75,7 @@ def test_rows_round_trip_in_bucket_order(tmp_path):
     assert [(s.resolution_bucket, s.length_bucket) for s in shards] == sorted({(s.resolution_bucket, s.length_bucket) for s in shards})
     for shard in shards:
         assert shard.uri == paths.SHARD_FILE.format(manifest_hash=MANIFEST, resolution=shard.resolution_bucket,
-                                                    length=shard.length_bucket, index=0)
+                                                    length=shard.length_bucket, index=0, sha256=shard.sha256)
         path = tmp_path / shard.uri
         assert shard.bytes == path.stat().st_size and shard.sha256 == hashlib.sha256(path.read_bytes()).hexdigest()
         table = read_shard(path)
@@ -110,7 +115,7 @@ def test_size_caps_split_files(tmp_path):
     clips = [c.model_copy(update={"width": 640, "height": 360, "end_s": c.start_s + 3.0}) for c in _clips(tmp_path, 10)]
     by_count = write_shards(clips, tmp_path, MANIFEST, ShardConfig(max_clips=3))
     assert [s.n_clips for s in by_count] == [3, 3, 3, 1]
-    assert [Path(s.uri).name for s in by_count] == [f"part-{i:05d}.parquet" for i in range(4)]
+    assert [Path(s.uri).name for s in by_count] == [f"part-{i:05d}-{s.sha256[:16]}.parquet" for i, s in enumerate(by_count)]
     # About 1.0-1.4 kB of clip bytes plus ~512 B of row: a 4 kB cap holds two rows.
     by_size = write_shards(clips, tmp_path, "cd" * 32, ShardConfig(max_bytes=4000))
     assert all(s.n_clips == 2 for s in by_size) and len(by_size) == 5
@@ -185,3 +190,49 @@ def test_write_speed(tmp_path):
     total = sum(s.bytes for s in shards)
     assert total > 200 * 200_000
     assert total / seconds > 10e6, f"{total / seconds / 1e6:.1f} MB/s"
+
+
+def _clip_ids(root: Path) -> list[str]:
+    return sorted(c for p in (root / "shards").rglob("*.parquet") for c in read_shard(p)["clip_id"].to_pylist())
+
+
+def test_a_later_run_into_the_same_bucket_adds_files_and_overwrites_none(tmp_path):
+    """Issue 26: shards were named by bucket and part number only, so a second run's part-00000
+    replaced the first run's and its clips were in no shard any more."""
+    clips = [c.model_copy(update={"width": 640, "height": 360, "end_s": c.start_s + 3.0}) for c in _clips(tmp_path, 4)]
+    first = write_shards(clips[:2], tmp_path, MANIFEST)
+    second = write_shards(clips[2:], tmp_path, MANIFEST)
+    assert len(first) == len(second) == 1 and Path(first[0].uri).parent == Path(second[0].uri).parent
+    assert first[0].uri != second[0].uri
+    assert _clip_ids(tmp_path) == sorted(c.clip_id for c in clips)
+    for shard in first + second:
+        assert hashlib.sha256((tmp_path / shard.uri).read_bytes()).hexdigest() == shard.sha256
+    assert write_shards(clips[:2], tmp_path, MANIFEST) == first  # the same clips: the same file, rewritten
+
+
+def test_old_layout_shards_are_found_and_renamed_by_content(tmp_path):
+    shards = write_shards(_clips(tmp_path, 8), tmp_path, MANIFEST)
+    old = []
+    for shard in shards:  # as the writer named them before issue 26
+        legacy = (tmp_path / shard.uri).with_name("part-00000.parquet")
+        (tmp_path / shard.uri).rename(legacy)
+        old.append(legacy.relative_to(tmp_path).as_posix())
+    (tmp_path / "shards" / "notes.parquet").write_bytes(b"not in a bucket folder: left alone")
+    found = legacy_shards(tmp_path)
+    assert [f.uri for f in found] == sorted(old)
+    assert sorted((f.new_uri, f.sha256) for f in found) == sorted((s.uri, s.sha256) for s in shards)
+    for item in found:
+        rename_legacy(tmp_path, item)
+    assert legacy_shards(tmp_path) == []
+    assert sorted(p.relative_to(tmp_path).as_posix() for p in (tmp_path / "shards").rglob("part-*")) == sorted(
+        s.uri for s in shards)
+    assert (tmp_path / "shards" / "notes.parquet").exists()
+
+
+def test_a_full_disk_names_the_shard_and_leaves_no_temporary(tmp_path, monkeypatch):
+    faults.reset()
+    monkeypatch.setenv(faults.ENV, "enospc@shard")
+    with pytest.raises(EnvironmentFault, match=r"shards/.*/\.part-00000\.\d+\.tmp: disk full while writing shards$"):
+        write_shards(_clips(tmp_path, 3), tmp_path, MANIFEST)
+    assert not list((tmp_path / "shards").rglob("*.parquet")) and not list((tmp_path / "shards").rglob(".*"))
+    assert remove_stale_temporaries(tmp_path) == []
