@@ -195,15 +195,18 @@ def _reused(run: RunContext, group: list[ClipRecord], targets: list[Path], root:
     is encoded again: its bytes are intact (the clip ids hash them), and with a fixed thread
     count x264 writes the same clips, so encoding again restores what lineage recorded."""
     recorded = claims.recorded(run.warehouse, [c.clip_id for c in group])
+    tags = claims.clip_tags(run.warehouse, [c.clip_id for c in group])
     out = []
     for clip, target in zip(group, targets):
         digest = integrity.file_sha256(target)
         row = recorded.get(clip.clip_id)
         if row is None or integrity.Recorded(*row).sha256 != digest:
             want = f"lineage's {row[3][:12]}" if row is not None else "no sha256 in lineage"
-            print(f"{target}: sha256 {digest[:12]} differs from {want}; encoding {clip.source_uri} again")
+            print(paths.escaped(f"{target}: sha256 {digest[:12]} differs from {want}; encoding {clip.source_uri} again"))
             return None
-        out.append(_with_file(clip, target, root, sha256=digest))
+        # The guard's tag belongs to the file: the encode that hid the faces recorded it.
+        kept = tuple(dict.fromkeys((*clip.tags, *(t for t in tags.get(clip.clip_id, ()) if t.startswith("guard:")))))
+        out.append(_with_file(clip.model_copy(update={"tags": kept}), target, root, sha256=digest))
     return out
 
 

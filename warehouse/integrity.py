@@ -55,3 +55,13 @@ def files(warehouse: Warehouse, manifest_hash: str | None = None) -> list[tuple]
         _, rows = warehouse.query(f"{_SELECT} WHERE {_FILES} AND uri IN (SELECT uri FROM artifacts WHERE {_FILES} "
                                   "AND manifest_hash = $mh) ORDER BY uri, artifact_id", {"mh": manifest_hash})
     return rows
+
+
+def clip_tags(warehouse: Warehouse, clip_ids: Sequence[str]) -> dict[str, tuple[str, ...]]:
+    """The tags lineage recorded with each clip file (e.g. ``guard:faces_hidden``, which only
+    the encode that hid the faces knows): a clip file reused by a re-run keeps them."""
+    if not clip_ids:
+        return {}
+    _, rows = warehouse.query("SELECT artifact_id, CAST(attrs->'tags' AS VARCHAR[]) FROM artifacts "
+                              "WHERE kind = 'clip' AND list_contains($ids, artifact_id)", {"ids": list(clip_ids)})
+    return {r[0]: tuple(r[1] or ()) for r in rows}

@@ -4,6 +4,7 @@ import pytest
 
 from flows.curate import curate
 from schemas.settings import Settings
+from tasks.curate.shards import read_shard
 from tasks.guard.clip import find_faces
 from tasks.guard.config import GuardConfig
 from warehouse.store import Warehouse
@@ -27,6 +28,14 @@ def test_faces_are_hidden_and_recorded(prefect_harness, data_root, carphone):
     assert per_frame["guard_face_boxes"][0] >= 60  # a box on most of the 120 frames, detected or carried
     assert per_frame["guard_faces_frames"] == (1, per_frame["guard_face_boxes"][0])
     assert find_faces(data_root / uri, GuardConfig()) == ()  # searched on every frame: no face left
+
+
+def test_a_rerun_keeps_the_guard_tag_of_the_clip_it_reuses(prefect_harness, data_root, carphone):
+    first = curate([str(carphone)])
+    again = curate([str(carphone)])  # the clip file is reused, not encoded again
+    assert again["shards"] == first["shards"]  # the same bytes, so the same content-addressed name
+    table = read_shard(data_root / again["shards"][0])
+    assert "guard:faces_hidden" in table.column("tags").to_pylist()[0]
 
 
 def test_a_blocked_caption_rejects_the_clip(prefect_harness, data_root, carphone, tmp_path):
