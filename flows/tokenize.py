@@ -33,8 +33,7 @@ def shard_files(shards: str, root: Path) -> list[Path]:
     """A folder or file of shards, or a manifest hash (its first 12+ hex digits) naming its shard folder."""
     place = Path(shards)
     if not place.exists() and len(shards) >= 12 and all(ch in "0123456789abcdef" for ch in shards):
-        place = Path(root) / Path(paths.SHARD_FILE.format(manifest_hash=shards, resolution="x", length="x", index=0,
-                                                          sha256="x")).parents[2]
+        place = paths.resolve(root, paths.SHARDS_OF_MANIFEST, manifest_hash=shards)
     found = data.find_shards([place])
     if not found:
         raise FileNotFoundError(f"{shards}: no shard files there (give a shard folder or a manifest hash)")
@@ -141,6 +140,11 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
         mh = hashes.pop() if len(hashes) == 1 else None
         decoded = {uri: decode_shard.submit(path, root, uri, size, max_encode_frames) for path, uri, _, _ in known}
         clips = {uri: future.result() for uri, future in decoded.items()}
+        # A clip two curate runs put in two shards of a bucket (shards are named by content)
+        # is trained on and encoded to tokens once, from the first shard that holds it.
+        seen: set[str] = set()
+        for uri in sorted(clips):
+            clips[uri] = [c for c in clips[uri] if not (c.clip_id in seen or seen.add(c.clip_id))]
 
         t0 = time.perf_counter()
         key = stable_id(STAGE_TRAIN, content_hash(model_config), content_hash(config), *sorted(s for _, _, s, _ in known),
@@ -168,7 +172,7 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
             t0 = time.perf_counter()
             target, rel = tokens.token_shard_path(root, checkpoint_id, index)
             ekey = stable_id(STAGE_ENCODE, checkpoint_id, shard_id, str(max_encode_frames), str(index))
-            if not run.pending(STAGE_ENCODE, [ekey]) and target.exists():
+            if not clips[uri] or (not run.pending(STAGE_ENCODE, [ekey]) and target.exists()):
                 continue
             digest, nbytes, n, score = encode_shard(folder, clips[uri], target, max_encode_frames)
             stage = _stage(run, STAGE_ENCODE, ekey, len(clips[uri]), n, t0, shard_mh or mh, source=uri)

@@ -161,3 +161,23 @@ def test_curate_encodes_a_changed_clip_again_instead_of_sharding_it(prefect_harn
         _, shards = wh.query("SELECT count(*) FROM artifacts WHERE kind = 'shard'")
     assert shards == [(len(curated["shards"]),)]
     assert lineage_problems(Settings().warehouse_path) == {}
+
+
+def test_a_clip_in_two_shards_is_trained_on_and_tokenized_once(prefect_harness, data_root, inbox, tmp_path):
+    """Shards are named by content, so curating A, then A and B, leaves A in two shards of one
+    bucket: the tokenizer takes it once."""
+    folder, config = inbox
+    first = curate([str(folder)], str(MANIFEST), str(config))
+    other = tmp_path / "other"
+    other.mkdir()
+    scenario = load(MANIFEST).model_copy(update={"horizon_s": 4.0})
+    write_mp4(other / "episode2.mp4", rollout(scenario, 2).frames["overhead"], 30)
+    both = curate([str(folder), str(other)], str(MANIFEST), str(config))
+    assert len(set(first["shards"]) | set(both["shards"])) == 2  # A alone, then A with B
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, (n_clips,) = wh.query("SELECT count(*) FROM artifacts WHERE kind = 'clip' AND uri IS NOT NULL")
+
+    result = tokenize(first["manifest_hash"], "tiny-dv4x8x8", steps=2, size=32, batch_size=2)
+    assert result["clips"] == n_clips[0]
+    ids = [r["clip_id"] for uri in result["token_shards"] for r in pq.read_table(data_root / uri).to_pylist()]
+    assert sorted(ids) == sorted(set(ids)) and len(ids) == n_clips[0]
