@@ -33,6 +33,8 @@ class Settings(BaseSettings):
     task_runner: Literal["local", "process", "ray"] = "local"
     ray_address: str | None = None
     workers: int = Field(2, ge=1, le=256)
+    lock_timeout: float = Field(60.0, ge=0, le=86_400, description="seconds a writer waits for another process "
+                                "writing to the same data root (or holding the warehouse) before it gives up, exit 4")
 
     @property
     def warehouse_path(self) -> Path:

@@ -1,9 +1,19 @@
-"""The lineage writer: one process, batched transactions, idempotent inserts."""
+"""The lineage writer: one process, batched transactions, idempotent inserts.
+
+A warehouse opened for writing is checked first (issue 26): DuckDB verifies a block's checksum
+when it reads the block, so every table is read once (a flipped byte in data, or a truncated
+file, fails there), and a write-ahead log left beside the file must be one DuckDB replays
+(it silently ignores one it cannot: garbage, or another database's). A damaged warehouse
+raises EnvironmentFault before anything is written; a warehouse another process holds is
+waited for, up to the lock timeout, then Busy.
+"""
 
 from __future__ import annotations
 
 import json
+import re
 import threading
+import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from importlib import resources
@@ -14,6 +24,7 @@ import duckdb
 import pyarrow as pa
 
 from schemas import SCHEMA_VERSION
+from schemas.errors import Busy, EnvironmentFault, NotBuilt
 from schemas.records import LineageBatch, Record, RunRecord
 
 # Column order of each table as the writer fills it; JSON columns are written as text.
@@ -31,8 +42,32 @@ JSON_COLUMNS = {"attrs", "scores", "params"}
 MIGRATIONS: dict[int, tuple[str, ...]] = {}
 
 
+# DuckDB's words for a file it cannot trust (a bad block checksum, a short read, a bad header).
+_DAMAGE = ("Corrupt database file", "Could not read enough bytes", "not a valid DuckDB database file",
+           "Corrupt WAL file", "Failure while replaying WAL")
+_LOCKED = "Could not set lock on file"
+_OPEN: dict[Path, int] = {}  # connections this process has open, per warehouse file
+
+
 class WarehouseError(RuntimeError):
     pass
+
+
+class WarehouseMissing(WarehouseError, NotBuilt):
+    """No warehouse yet: no flow has run on this data root (exit 3)."""
+
+
+def damaged(path: Path, what: str, advice: str = "move it aside (and its .wal) and re-run the flows into a new "
+                                                  "file, or restore it from a copy") -> EnvironmentFault:
+    return EnvironmentFault(f"{path}: the warehouse is damaged ({what}); {advice}")
+
+
+def _is_damage(exc: BaseException) -> bool:
+    return isinstance(exc, duckdb.Error) and any(words in str(exc) for words in _DAMAGE)
+
+
+def _first_line(exc: BaseException) -> str:
+    return str(exc).splitlines()[0] if str(exc) else type(exc).__name__
 
 
 def ddl() -> str:
@@ -58,20 +93,74 @@ def _arrow(table: str, rows: list[Record]) -> pa.Table:
 class Warehouse:
     """Opens (creating or checking the schema version of) a DuckDB lineage file."""
 
-    def __init__(self, path: Path | str, read_only: bool = False):
+    def __init__(self, path: Path | str, read_only: bool = False, lock_timeout: float | None = None):
         self.path = Path(path)
         self.read_only = read_only
         self.before_commit: Callable[[], None] | None = None  # called inside each batch's transaction
         if not read_only:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         elif not self.path.exists():
-            raise WarehouseError(f"{self.path}: no warehouse here yet (run a flow first)")
-        try:
-            self.con = duckdb.connect(str(self.path), read_only=read_only)
-        except duckdb.Error as exc:
-            raise WarehouseError(f"{self.path}: cannot open the warehouse: {exc}") from exc
+            raise WarehouseMissing(f"{self.path}: no warehouse here yet (run a flow first)")
+        if lock_timeout is None:
+            from schemas.settings import Settings
+
+            lock_timeout = Settings().lock_timeout
+        wal = self.wal_path
+        had_wal = wal.is_file() and wal.stat().st_size > 0
+        self._key = self.path.resolve()
+        first = not _OPEN.get(self._key)  # a nested flow's open shares the checked database DuckDB has loaded
+        self.con = self._connect(lock_timeout)
+        _OPEN[self._key] = _OPEN.get(self._key, 0) + 1
         self._lock = threading.Lock()
-        self._check_version()
+        try:
+            if not read_only and first:
+                self._check_intact(had_wal)
+            self._check_version()
+        except BaseException:
+            self.close()
+            raise
+
+    @property
+    def wal_path(self) -> Path:
+        return self.path.with_name(self.path.name + ".wal")
+
+    def _connect(self, timeout: float) -> duckdb.DuckDBPyConnection:
+        """Connect, waiting (with backoff) while another process holds the file: DuckDB takes an
+        OS lock per process, and a worldline writer holds the data root's lock too, so this
+        waits for a process outside worldline's lock (or a reader) to let go."""
+        deadline, pause = time.monotonic() + timeout, 0.05
+        while True:
+            try:
+                return duckdb.connect(str(self.path), read_only=self.read_only)
+            except duckdb.Error as exc:
+                if _is_damage(exc):
+                    raise damaged(self.path, _first_line(exc)) from None
+                if _LOCKED not in str(exc):
+                    raise WarehouseError(f"{self.path}: cannot open the warehouse: {_first_line(exc)}") from exc
+                if time.monotonic() >= deadline:
+                    pid = re.search(r"\(PID (\d+)\)", str(exc))
+                    raise Busy(f"{self.path}: another process{f' (pid {pid[1]})' if pid else ''} has the "
+                               f"warehouse open; waited {timeout:g} s (WORLDLINE_LOCK_TIMEOUT)") from None
+            time.sleep(min(pause, max(0.0, deadline - time.monotonic())))
+            pause = min(pause * 2, 1.0)
+
+    def _check_intact(self, had_wal: bool) -> None:
+        """Read every block of every table (DuckDB checks each block's checksum as it reads it),
+        and refuse a write-ahead log DuckDB did not replay: a checkpoint folds a replayed log
+        into the file and removes it, and leaves one it ignored where it was."""
+        if had_wal:
+            self.con.execute("CHECKPOINT")
+            if self.wal_path.is_file() and self.wal_path.stat().st_size > 0:
+                raise damaged(self.path, f"{self.wal_path.name} beside it is a write-ahead log DuckDB cannot replay",
+                              "move that file aside to open the warehouse without it (what it held is lost), "
+                              "or restore both from a copy")
+        try:
+            for table in self._tables():
+                self.con.execute(f'SELECT count(*), bit_xor(hash(COLUMNS(*))) FROM "{table}"').fetchall()
+        except duckdb.Error as exc:
+            if _is_damage(exc):
+                raise damaged(self.path, _first_line(exc)) from None
+            raise
 
     # -- schema -------------------------------------------------------------------------
     def _tables(self) -> set[str]:
@@ -110,7 +199,7 @@ class Warehouse:
     # -- writing ------------------------------------------------------------------------
     @contextmanager
     def transaction(self) -> Iterator[duckdb.DuckDBPyConnection]:
-        with self._lock:
+        with self._lock, self._damage_named():
             self.con.execute("BEGIN TRANSACTION")
             try:
                 yield self.con
@@ -170,7 +259,7 @@ class Warehouse:
         if not input_keys:
             return set()
         keys = pa.table({"k": input_keys})  # noqa: F841
-        with self._lock:  # one connection shared by threads: every use holds the lock
+        with self._lock, self._damage_named():  # one connection shared by threads: every use holds the lock
             rows = self.con.execute(
                 "SELECT input_key FROM stage_runs WHERE stage = ? AND status IN ('completed', 'partial') "
                 "AND input_key IN (SELECT k FROM keys)", [stage]).fetchall()
@@ -178,15 +267,26 @@ class Warehouse:
 
     # -- reading ------------------------------------------------------------------------
     def query(self, sql: str, params: dict[str, Any] | list[Any] | None = None) -> tuple[list[str], list[tuple]]:
-        with self._lock:
+        with self._lock, self._damage_named():
             cur = self.con.execute(sql, params or [])
             cols = [d[0] for d in cur.description] if cur.description else []
             return cols, cur.fetchall()
 
     def counts(self) -> dict[str, int]:
         tables = ("runs", *COLUMNS)
-        with self._lock:
+        with self._lock, self._damage_named():
             return {t: self.con.execute(f"SELECT count(*) FROM {t}").fetchall()[0][0] for t in tables}
+
+    @contextmanager
+    def _damage_named(self) -> Iterator[None]:
+        """A damaged block read after the open (a read-only open is not checked up front, and index
+        blocks are read only when a lookup needs them) is named in one line."""
+        try:
+            yield
+        except duckdb.Error as exc:
+            if _is_damage(exc):
+                raise damaged(self.path, _first_line(exc)) from None
+            raise
 
     def close(self) -> None:
         """Close the connection and drop it: a failed flow run's traceback keeps this object
@@ -194,6 +294,7 @@ class Warehouse:
         con, self.con = self.con, None
         if con is not None:
             con.close()
+            _OPEN[self._key] -= 1
 
     def __enter__(self) -> "Warehouse":
         return self

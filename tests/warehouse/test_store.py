@@ -1,3 +1,9 @@
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
 import duckdb
 import pytest
 
@@ -5,6 +11,8 @@ from schemas import SCHEMA_VERSION
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord, RejectionRecord, RunRecord
 from warehouse import store
 from warehouse.store import Warehouse, WarehouseError
+
+from tests.support import sha256_of
 
 
 def _batch(n=3, tag="a"):
@@ -113,3 +121,131 @@ def test_close_drops_the_connection_and_may_repeat(tmp_path):
     wh.close()
     wh.close()  # as __exit__ does after an explicit close
     assert wh.con is None  # nothing of DuckDB's is left for a failed run's traceback to keep alive
+
+
+# -- issue 26, point 8: a damaged warehouse is refused before anything is written ----------------
+@pytest.fixture(scope="module")
+def sound(tmp_path_factory):
+    """A warehouse of 20,000 artifacts (a dozen 256 KiB blocks) and the first block of its artifacts' data."""
+    path = tmp_path_factory.mktemp("sound") / "w.duckdb"
+    with Warehouse(path) as wh:
+        wh.write(_batch(20_000, tag="clip"))
+    with Warehouse(path, read_only=True) as wh:  # checkpointed at close: the rows are in blocks now
+        _, blocks = wh.query("SELECT min(block_id) FROM pragma_storage_info('artifacts') WHERE block_id >= 0")
+    return path, blocks[0][0]
+
+
+def _copy(sound, tmp_path):
+    import shutil
+
+    return Path(shutil.copy(sound[0], tmp_path / "w.duckdb"))
+
+
+def _refused(path: Path, what: str) -> None:
+    """Opening ``path`` for writing raises the one-line damage error, and writes nothing."""
+    from schemas.errors import EXIT_ENVIRONMENT, EnvironmentFault
+
+    before = {p.name: sha256_of(p) for p in path.parent.iterdir()}
+    with pytest.raises(EnvironmentFault) as caught:
+        Warehouse(path, lock_timeout=0)
+    message = str(caught.value)
+    assert message.startswith(f"{path}: the warehouse is damaged (") and what in message, message
+    assert "move" in message and "\n" not in message and caught.value.exit_code == EXIT_ENVIRONMENT
+    assert {p.name: sha256_of(p) for p in path.parent.iterdir()} == before
+
+
+def test_a_sound_copy_opens(sound, tmp_path):
+    with Warehouse(_copy(sound, tmp_path), lock_timeout=0) as wh:
+        assert wh.counts()["artifacts"] == 20_000
+
+
+def test_a_truncated_warehouse_is_refused(sound, tmp_path):
+    path = _copy(sound, tmp_path)
+    os.truncate(path, path.stat().st_size // 2)
+    _refused(path, "Could not read enough bytes")
+
+
+def test_a_flipped_byte_in_a_data_block_is_refused_and_named_by_a_reader_too(sound, tmp_path):
+    from schemas.errors import EnvironmentFault
+
+    path = _copy(sound, tmp_path)
+    with open(path, "r+b") as f:  # a block is 8 bytes of checksum, then data (DuckDB's storage format)
+        f.seek(store_header_bytes() + sound[1] * 262_144 + 8 + 100)
+        byte = f.read(1)
+        f.seek(-1, os.SEEK_CUR)
+        f.write(bytes([byte[0] ^ 0x01]))
+    _refused(path, "Corrupt database file")
+    with Warehouse(path, read_only=True, lock_timeout=0) as wh:  # readers are not checked up front
+        with pytest.raises(EnvironmentFault, match="the warehouse is damaged"):
+            wh.query("SELECT * FROM artifacts")
+
+
+def test_a_wal_duckdb_cannot_replay_is_refused_and_left_in_place(sound, tmp_path):
+    path = _copy(sound, tmp_path)
+    (tmp_path / "w.duckdb.wal").write_bytes(np_random_bytes(5000))
+    _refused(path, "w.duckdb.wal beside it is a write-ahead log DuckDB cannot replay")
+
+
+def test_a_wal_left_by_a_killed_writer_is_replayed(sound, tmp_path):
+    path = _copy(sound, tmp_path)
+    writer = ("import duckdb, os, sys\n"
+              "con = duckdb.connect(sys.argv[1])\n"
+              "con.execute(\"SET checkpoint_threshold = '10GB'\")\n"
+              "con.execute(\"INSERT INTO artifacts (artifact_id, kind) VALUES ('late', 'clip')\")\n"
+              "os._exit(0)\n")  # killed: the row is only in the write-ahead log
+    subprocess.run([sys.executable, "-c", writer, str(path)], check=True)
+    assert (tmp_path / "w.duckdb.wal").stat().st_size > 0
+    with Warehouse(path, lock_timeout=0) as wh:
+        assert wh.query("SELECT count(*) FROM artifacts WHERE artifact_id = 'late'")[1] == [(1,)]
+    assert not (tmp_path / "w.duckdb.wal").exists()
+
+
+def test_a_file_that_is_not_duckdb_is_damaged(tmp_path):
+    path = tmp_path / "w.duckdb"
+    path.write_bytes(np_random_bytes(300_000))
+    _refused(path, "")
+
+
+# -- issue 26, point 6: a warehouse another process holds is waited for, then Busy ---------------
+HOLD_DUCKDB = ("import duckdb, sys, time\ncon = duckdb.connect(sys.argv[1])\nprint('held', flush=True)\n"
+               "time.sleep(float(sys.argv[2]))\n")
+
+
+def test_a_warehouse_another_process_holds_is_busy_after_the_timeout(tmp_path):
+    from schemas.errors import Busy
+
+    path = tmp_path / "w.duckdb"
+    Warehouse(path).close()
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_DUCKDB, str(path), "30"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        t0 = time.monotonic()
+        with pytest.raises(Busy) as caught:
+            Warehouse(path, lock_timeout=1)
+        waited = time.monotonic() - t0
+    finally:
+        holder.kill()
+        holder.wait()
+    assert 1 <= waited < 5
+    assert str(caught.value) == (f"{path}: another process (pid {holder.pid}) has the warehouse open; "
+                                 "waited 1 s (WORLDLINE_LOCK_TIMEOUT)")
+
+
+def test_a_warehouse_released_within_the_timeout_opens(tmp_path):
+    path = tmp_path / "w.duckdb"
+    Warehouse(path).close()
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_DUCKDB, str(path), "1"], stdout=subprocess.PIPE, text=True)
+    assert holder.stdout.readline().strip() == "held"
+    with Warehouse(path, lock_timeout=30) as wh:
+        assert wh.counts()["runs"] == 0
+    holder.wait()
+
+
+def store_header_bytes() -> int:
+    return 3 * 4096  # DuckDB's main header and two database headers precede block 0
+
+
+def np_random_bytes(n: int) -> bytes:
+    import numpy as np
+
+    return np.random.default_rng(26).integers(0, 256, n, dtype=np.uint8).tobytes()
