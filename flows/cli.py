@@ -1,33 +1,92 @@
-"""The `worldline` command: subcommands map to flows; each takes a manifest and a few overrides."""
+"""The `worldline` command: subcommands map to flows; each takes a manifest and a few overrides.
+
+Exit codes (schemas/errors.py): 0 done, 1 partial (some inputs failed), 2 invalid input,
+3 not built (run an earlier step first), 4 busy (another process writes to the data root),
+5 environment (disk full, a damaged warehouse, a file changed behind lineage's back),
+130 interrupted by Ctrl-C (SIGINT), 143 interrupted by SIGTERM.
+"""
 
 from __future__ import annotations
 
 import csv
+import errno
 import json
 import logging
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Optional
 
 import typer
 from rich.console import Console
 from rich.table import Table
+from typer.core import TyperGroup
 
 import flows  # noqa: F401  (sets PREFECT_HOME before anything imports prefect)
+from schemas.errors import EXIT_ENVIRONMENT, EXIT_INVALID, EXIT_PARTIAL, WorldlineError
 from schemas.settings import Settings
 
-app = typer.Typer(add_completion=False, no_args_is_help=True, help=__doc__)
+
+class _Commands(TyperGroup):
+    """Every command ends with one line and its exit code, never a traceback, for the errors a
+    user can act on: a WorldlineError (raised anywhere, a flow included), a full disk, SIGTERM."""
+
+    def invoke(self, ctx):
+        from flows.ephemeral import exit_code
+
+        try:
+            with _held:
+                return super().invoke(ctx)
+        except BaseException as exc:
+            code = exit_code(exc)  # after SIGINT or SIGTERM, whatever the interrupt surfaced as
+            if code is None and isinstance(exc, WorldlineError):
+                _say(str(exc))
+                code = exc.exit_code
+            elif code is None and isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                _say(f"disk full: {exc.filename or exc.strerror}")
+                code = EXIT_ENVIRONMENT
+            if code is None:
+                raise
+            raise typer.Exit(code) from None
+
+
+_held = ExitStack()  # what a command holds until it ends (_writing), released before its exit code is set
+app = typer.Typer(cls=_Commands, add_completion=False, no_args_is_help=True, help=__doc__)
 manifest_app = typer.Typer(no_args_is_help=True, help="Validate, hash and show scenario manifests.")
 app.add_typer(manifest_app, name="manifest")
 out = Console()
 err = Console(stderr=True)
 
-EXIT_INVALID = 2
+
+def _say(message: str) -> None:
+    err.print(message, markup=False, highlight=False, soft_wrap=True)
 
 
 def _fail(message: str, code: int = EXIT_INVALID) -> None:
-    err.print(message, markup=False, highlight=False, soft_wrap=True)
+    _say(message)
     raise typer.Exit(code)
+
+
+def _refuse(exc: Exception) -> None:
+    """``_fail`` with an error's message and its exit code (2 unless it is a WorldlineError)."""
+    _fail(str(exc), exc.exit_code if isinstance(exc, WorldlineError) else EXIT_INVALID)
+
+
+def _writing() -> None:
+    """For the rest of this command: the data root's writer lock (taken now, before Prefect
+    starts; exit 4 after WORLDLINE_LOCK_TIMEOUT seconds of waiting), the temporary Prefect server
+    stopped on the way out, and Ctrl-C or SIGTERM ending the command within seconds
+    (flows/ephemeral.py)."""
+    from flows import ephemeral
+    from warehouse import lock
+
+    settings = Settings()
+    _held.enter_context(ephemeral.interrupts_handled())
+    _held.enter_context(lock.writer(settings.data_root, settings.lock_timeout, on_wait=lambda holder: _say(
+        f"{settings.data_root}: another worldline process ({holder}) is writing; waiting up to "
+        f"{settings.lock_timeout:g} s")))
+    ephemeral.guard_prefect()
+    _held.enter_context(ephemeral.servers_stopped_on_exit())
 
 
 def _load_or_exit(path: Path):
@@ -64,7 +123,7 @@ def _checkpoint_or_exit(resolve):
         with Warehouse(settings.warehouse_path, read_only=True) as warehouse:
             return resolve(warehouse, settings.data_root)
     except (FileNotFoundError, CheckpointError, WarehouseError) as exc:
-        _fail(str(exc))
+        _refuse(exc)
 
 
 def _world_model_or_exit(name: str | None) -> str:
@@ -207,7 +266,7 @@ def audit(
                     params[key] = _full_id(wh, table, column, params[key], key)
             cols, rows = wh.query(sql, params)
     except WarehouseError as exc:
-        _fail(str(exc))
+        _refuse(exc)
     _print_rows(cols, rows, fmt, title=f"{name} ({len(rows)} rows)")
 
 
@@ -237,7 +296,7 @@ def summary() -> None:
                 "SELECT flow, status, count(*) AS runs, max(ended_at) AS last_ended FROM runs GROUP BY ALL ORDER BY flow")
             kcols, krows = wh.query("SELECT kind, count(*) AS n, sum(bytes) AS bytes FROM artifacts GROUP BY kind ORDER BY kind")
     except WarehouseError as exc:
-        _fail(str(exc))
+        _refuse(exc)
     _print_rows(["table", "rows"], list(counts.items()), "table", title=f"lineage {Settings().warehouse_path}")
     _print_rows(kcols, krows, "table", title="artifacts by kind")
     _print_rows(cols, rows, "table", title="runs")
@@ -251,6 +310,7 @@ def register(paths: list[Path]) -> None:
         _load_or_exit(path)
     from flows.register import register as register_flow
 
+    _writing()
     for path in paths:
         register_flow(str(path))
 
@@ -261,6 +321,7 @@ def simulate(manifest: Path, episodes: int = typer.Option(2, min=1, max=10_000, 
     _simulable_or_exit(manifest)
     from flows.simulate import simulate as simulate_flow
 
+    _writing()
     result = simulate_flow(str(manifest), episodes)
     out.print(f"{result['new']} new episodes ({result['successes']} successes) under {result['manifest_hash'][:12]}",
               highlight=False)
@@ -274,6 +335,7 @@ def corpus(minutes: float = typer.Option(1.0, min=0.05, max=600, help="minutes o
     """Generate a labelled raw-footage corpus with ground truth (Prefect flow `corpus`)."""
     from flows.corpus import corpus as corpus_flow
 
+    _writing()
     result = corpus_flow(minutes=minutes, seed=seed, width=width, height=height, fps=fps)
     out.print(f"{len(result['videos'])} videos with ground truth under corpus/seed_{seed:06d}", highlight=False)
 
@@ -283,6 +345,7 @@ def demo() -> None:
     """Run the whole loop on built-in generated data, then print a lineage summary."""
     from flows.demo import demo as demo_flow
 
+    _writing()
     result = demo_flow()
     summary()
     cols = ["cell", "episodes", "before", "after", "targeted"]
@@ -304,7 +367,7 @@ def server(port: Optional[int] = typer.Option(None, min=1, max=65535,
     try:
         serve(port=port, pool=pool, deploy=deploy)
     except StackError as exc:
-        _fail(str(exc), 1)
+        _fail(str(exc), EXIT_ENVIRONMENT)
 
 
 @app.command()
@@ -325,11 +388,12 @@ def curate(
               "by name)")
     from flows.curate import curate as curate_flow
 
+    _writing()
     result = curate_flow([str(p) for p in inputs], str(manifest) if manifest else None, str(config) if config else None)
     out.print(f"{result['status']}: {result['clips']} clips in {len(result['shards'])} shards, "
               f"{result['failed']} of {result['inputs']} inputs quarantined", highlight=False)
     if result["failed"]:
-        raise typer.Exit(1)
+        raise typer.Exit(EXIT_PARTIAL)
 
 
 def _video_or_exit(video: Path):
@@ -414,6 +478,7 @@ def tokenize(
         shard_files(shards, Settings().data_root.resolve())
     except FileNotFoundError as exc:
         _fail(str(exc))
+    _writing()
     try:
         result = tokenize_flow(shards, preset, steps, size, batch_size=batch, crop=crop, motion_weight=motion_weight,
                                focus_crops=focus_crops, init=init)
@@ -482,6 +547,7 @@ def train(
         if action_totals > width or width + action_totals > room:
             _fail(f"--action-totals {action_totals}: the episodes of {manifest} have {width} action values a step "
                   f"and preset {preset} takes {room} values in all")
+    _writing()
     try:
         result = train_flow(manifest, tokenizer, tokens, preset, steps, post_steps, batch_size=batch, window=window,
                             camera=camera, patch=patch, change_weight=change_weight,
@@ -517,6 +583,7 @@ def panels(
     except ValueError as exc:
         _fail(f"--camera: {exc}")
 
+    _writing()
     try:
         result = panels_flow(str(manifest), str(grid) if grid else None, episodes, folder, camera, guard)
     except ValueError as exc:
@@ -570,6 +637,7 @@ def evaluate_policies_cmd(
     except PanelContractError as exc:
         _fail(str(exc))
 
+    _writing()
     try:
         result = evaluate_flow(str(manifest), str(grid) if grid else None, episodes, specs or None,
                                [str(p) for p in compare or []], folder, detector)
@@ -604,6 +672,7 @@ def train_policy_cmd(
         _fail(f"{manifest}: behaviour cloning drives arms; this manifest's embodiment is {scenario.embodiment.kind!r}")
     from flows.policy import train_policy as train_flow
 
+    _writing()
     result = train_flow(str(manifest), episodes, steps, preset, 0, holdout)
     rate = result["held_out_success_rate"]
     out.print(f"checkpoint {result['folder']}" + ("" if rate is None else f"; held-out success {rate:.2f}"),
@@ -634,6 +703,7 @@ def evaluate_physics_cmd(
     tokenizer_folder = _tokenizer_or_exit(tokenizer) if tokenizer else None
     from flows.physics import evaluate_physics
 
+    _writing()
     try:
         result = evaluate_physics(str(manifest), folder, tokenizer_folder, episodes,
                                   first_seed, camera, horizon)
@@ -665,6 +735,7 @@ def loop_cmd(
         policy = _policies_or_exit([policy], behaviour_cloning=True)[0][0]
     from flows.loop import loop as loop_flow
 
+    _writing()
     result = loop_flow(str(manifest), policy, str(grid) if grid else None, episodes, worst, new_episodes, post_steps)
     fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
     _print_rows(["cell", "episodes", "before", "after", "targeted"],
@@ -717,12 +788,16 @@ def verify(
 
 class _InputErrorsInOneLine(logging.Filter):
     """Prefect logs a failed flow or task run's exception with its traceback; from the CLI an
-    input error (FileNotFoundError, ValueError: a missing file, a refused manifest or contract)
-    is then stated in one line, as the CLI states it again on exit. Other errors keep their
-    traceback, and so does every run a worker executes."""
+    input error (FileNotFoundError, ValueError: a missing file, a refused manifest or contract),
+    a WorldlineError or an interrupt is then stated in one line, as the CLI states it again on
+    exit. Other errors keep their traceback, and so does every run a worker executes."""
 
     def filter(self, record: logging.LogRecord) -> bool:
-        if record.exc_info and isinstance(record.exc_info[1], (FileNotFoundError, ValueError)):
+        from flows.ephemeral import signal_name
+
+        exc = record.exc_info[1] if record.exc_info else None
+        if exc is not None and (isinstance(exc, (FileNotFoundError, ValueError, WorldlineError))
+                                or signal_name(exc)):
             record.exc_info = record.exc_text = None
         return True
 

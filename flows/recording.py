@@ -1,7 +1,9 @@
 """How a flow records itself: one run row, manifest rows, and batched lineage writes.
 
 The flow process is the only writer (DuckDB locks the file per process); tasks return
-`LineageBatch`es and the flow hands them to `RunContext.write`.
+`LineageBatch`es and the flow hands them to `RunContext.write`. A run holds the data root's
+writer lock (warehouse/lock.py; the command that started it usually holds it already), and an
+interrupted run is closed as failed with the signal named.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.records import LineageBatch, RunRecord
 from schemas.settings import Settings
 from tasks import faults, manifests
+from warehouse import lock
 from warehouse.store import Warehouse
 
 _LIVE: set[str] = set()  # runs this process has started and not finished
@@ -60,10 +63,26 @@ class RunContext:
 @contextmanager
 def recorded_run(flow: str, settings: Settings, manifest: ScenarioManifest | None = None,
                  source_uri: str | None = None, params: dict[str, Any] | None = None) -> Iterator[RunContext]:
+    with lock.writer(settings.data_root, settings.lock_timeout):
+        with _recorded(flow, settings, manifest, source_uri, params) as ctx:
+            yield ctx
+
+
+def failure_message(exc: BaseException) -> str:
+    """The run row's message for a run that raised ``exc``."""
+    from flows.ephemeral import signal_name
+
+    name = signal_name(exc)
+    return f"interrupted by {name}" if name else f"{type(exc).__name__}: {exc}"[:2000]
+
+
+@contextmanager
+def _recorded(flow: str, settings: Settings, manifest: ScenarioManifest | None, source_uri: str | None,
+              params: dict[str, Any] | None) -> Iterator[RunContext]:
     prefect_id = current_flow_run_id()
     run_id = prefect_id or str(uuid.uuid4())
     digest = manifest_hash(manifest) if manifest is not None else None
-    warehouse = Warehouse(settings.warehouse_path)
+    warehouse = Warehouse(settings.warehouse_path, lock_timeout=settings.lock_timeout)
     warehouse.before_commit = lambda: faults.point("lineage")
     _LIVE.add(run_id)
     try:
@@ -76,7 +95,7 @@ def recorded_run(flow: str, settings: Settings, manifest: ScenarioManifest | Non
         try:
             yield ctx
         except BaseException as exc:
-            warehouse.finish_run(run_id, "failed", f"{type(exc).__name__}: {exc}"[:2000])
+            warehouse.finish_run(run_id, "failed", failure_message(exc))
             raise
         message = ctx.message
         if ctx.failures and not message:

@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import time
+from contextlib import suppress
 from pathlib import Path
 
 from prefect import flow, task
+from prefect.futures import as_completed
 
 from flows.params import Episodes
 from flows.recording import recorded_run
@@ -36,20 +38,35 @@ def simulate(manifest: str, episodes: Episodes = 2) -> dict:
                       params={"manifest": manifest, "episodes": episodes}) as run:
         keys = {stable_id("episode", run.manifest_hash, str(i)): i for i in range(episodes)}
         todo = set(run.pending("simulate", list(keys)))
-        futures = {key: (time.perf_counter(), simulate_episode.submit(scenario, run.manifest_hash, i, settings.data_root))
-                   for key, i in keys.items() if key in todo}
+        by_future = {simulate_episode.submit(scenario, run.manifest_hash, i, settings.data_root):
+                     (key, time.perf_counter()) for key, i in keys.items() if key in todo}
         outcomes = {}
-        with progress(len(futures), f"simulate {scenario.name}") as bar:
-            for key, (t0, future) in futures.items():
-                written, success, reason = future.result()
-                bar.advance()
-                stage = StageRunRecord(stage_run_id=run.stage_run_id("simulate", key), run_id=run.run_id,
-                                       stage="simulate", input_key=key, manifest_hash=run.manifest_hash,
-                                       n_in=1, n_out=1, seconds=round(time.perf_counter() - t0, 3),
-                                       attrs={"index": keys[key], "success": success, "reason": reason})
-                run.write(LineageBatch(stage_runs=[stage]).extend(
-                    files.episode_lineage(written, run.manifest_hash, stage.stage_run_id, settings.data_root)))
-                outcomes[keys[key]] = (success, reason)
+
+        def record(future) -> None:
+            """One finished episode's lineage, written as soon as it is done: an interrupted run
+            keeps every episode it finished (issue 26)."""
+            key, t0 = by_future.pop(future)
+            written, success, reason = future.result()
+            stage = StageRunRecord(stage_run_id=run.stage_run_id("simulate", key), run_id=run.run_id,
+                                   stage="simulate", input_key=key, manifest_hash=run.manifest_hash,
+                                   n_in=1, n_out=1, seconds=round(time.perf_counter() - t0, 3),
+                                   attrs={"index": keys[key], "success": success, "reason": reason})
+            run.write(LineageBatch(stage_runs=[stage]).extend(
+                files.episode_lineage(written, run.manifest_hash, stage.stage_run_id, settings.data_root)))
+            outcomes[keys[key]] = (success, reason)
+
+        with progress(len(by_future), f"simulate {scenario.name}") as bar:
+            try:
+                for future in as_completed(list(by_future)):
+                    record(future)
+                    bar.advance()
+            except BaseException:  # an interrupt, or a failed episode: start no more, keep those finished
+                for future in by_future:
+                    future.wrapped_future.cancel()
+                for future in [f for f in by_future if f.wrapped_future.done() and not f.wrapped_future.cancelled()]:
+                    with suppress(Exception):
+                        record(future)
+                raise
         done = sorted(outcomes.items())
         publish("simulate", f"{scenario.name}: {len(done)} new episodes, {episodes - len(done)} already done",
                 markdown_table(("episode", "seed", "outcome", "reason"),

@@ -2,9 +2,13 @@ import os
 import subprocess
 import sys
 
+import errno
+
+import pytest
 from typer.testing import CliRunner
 
 from flows.cli import app
+from schemas.errors import EXIT_BUSY, EXIT_ENVIRONMENT, EXIT_INTERRUPTED, EXIT_NOT_BUILT, Busy, NotBuilt
 from schemas.manifest import manifest_hash
 from tasks.manifests import load
 
@@ -47,8 +51,9 @@ def test_unknown_audit_lists_the_available_ones(data_root):
 
 
 def test_audit_without_warehouse_is_a_clear_error(data_root):
-    result = runner.invoke(app, ["audit", "rejections", "--manifest", "a" * 64])
-    assert result.exit_code == 2 and "no warehouse here yet" in result.output
+    for args in (["audit", "rejections", "--manifest", "a" * 64], ["summary"]):
+        result = runner.invoke(app, args)
+        assert result.exit_code == EXIT_NOT_BUILT and "no warehouse here yet (run a flow first)" in result.output
 
 
 def test_console_script_runs():
@@ -119,7 +124,7 @@ def test_a_failed_flow_from_the_cli_ends_without_traceback_or_binding_noise(tmp_
     result = subprocess.run([sys.executable, "-m", "flows.cli", "tokenize", str(fake), "--steps", "1"],
                             capture_output=True, text=True, cwd=REPO, env=env, timeout=300)
     output = result.stdout + result.stderr
-    assert result.returncode == 2 and f"{fake}: not a readable Parquet file" in output, output
+    assert result.returncode == 2 and f"{fake}: " in output, output
     assert "Traceback" not in output and "nanobind" not in output, output
 
 
@@ -143,3 +148,88 @@ def test_curate_refuses_folders_without_videos(tmp_path, data_root):
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert result.exit_code == 2 and len(lines) == 1 and "no videos there" in lines[0], result.output
     assert not (data_root / "lineage.duckdb").exists()
+
+
+# -- issue 26: each exit code, and one line for each -----------------------------------------------
+def _lines(result) -> list[str]:
+    return [line for line in result.output.splitlines() if line.strip()]
+
+
+def test_a_busy_data_root_is_exit_4_in_one_line_before_prefect_starts(data_root, monkeypatch):
+    from tests.warehouse.test_lock import hold_in_another_process
+
+    holder = hold_in_another_process(data_root, 30)
+    monkeypatch.setenv("WORLDLINE_LOCK_TIMEOUT", "1")
+    try:
+        result = runner.invoke(app, ["register", str(GOOD)])
+    finally:
+        holder.kill()
+        holder.wait()
+    lines = _lines(result)
+    assert result.exit_code == EXIT_BUSY, result.output
+    assert lines[0] == f"{data_root}: another worldline process (pid {holder.pid}, command -c {data_root} 30) is " \
+                       "writing; waiting up to 1 s"
+    assert lines[1:] == [f"{data_root}: another worldline process (pid {holder.pid}, command -c {data_root} 30) "
+                         "is writing; waited 1 s (WORLDLINE_LOCK_TIMEOUT)"]
+    assert not (data_root / "lineage.duckdb").exists() and not (data_root / "prefect" / "prefect.db").exists()
+
+
+def test_a_damaged_warehouse_raised_inside_the_flow_is_exit_5_in_one_line(tmp_path):
+    """recorded_run refuses the warehouse inside the flow run (EnvironmentFault); Prefect hands
+    the error back to the command as itself, which ends with its line and its code."""
+    import numpy as np
+
+    root = tmp_path / "root"
+    root.mkdir()
+    damaged = root / "lineage.duckdb"
+    damaged.write_bytes(np.random.default_rng(5).integers(0, 256, 300_000, np.uint8).tobytes())
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("WORLDLINE_", "PREFECT_"))}
+    result = subprocess.run([sys.executable, "-m", "flows.cli", "register", str(GOOD)], capture_output=True, text=True,
+                            cwd=REPO, env={**env, "WORLDLINE_DATA_ROOT": str(root)}, timeout=300)
+    assert result.returncode == EXIT_ENVIRONMENT, result.stdout + result.stderr
+    assert result.stderr.strip().splitlines()[-1].startswith(f"{damaged}: the warehouse is damaged (")
+    assert "Traceback" not in result.stdout + result.stderr
+
+
+@pytest.mark.parametrize("error, code, line", [
+    (Busy("root: another worldline process (pid 1, command x) is writing; waited 60 s"), EXIT_BUSY,
+     "root: another worldline process (pid 1, command x) is writing; waited 60 s"),
+    (NotBuilt("no token shards: run `worldline tokenize` first"), EXIT_NOT_BUILT,
+     "no token shards: run `worldline tokenize` first"),
+    (OSError(errno.ENOSPC, "No space left on device", "/data/shards/x.parquet"), EXIT_ENVIRONMENT,
+     "disk full: /data/shards/x.parquet"),
+    (OSError(errno.EDQUOT, "Disk quota exceeded", "/data/x"), EXIT_ENVIRONMENT, "disk full: /data/x"),
+    (KeyboardInterrupt(), EXIT_INTERRUPTED, None),
+])
+def test_what_a_command_raises_sets_its_exit_code_and_one_line(data_root, monkeypatch, error, code, line):
+    import flows.register
+
+    def flow(path):
+        raise error
+
+    monkeypatch.setattr(flows.register, "register", flow)
+    result = runner.invoke(app, ["register", str(GOOD)])
+    assert result.exit_code == code, result.output
+    assert _lines(result) == ([line] if line else []), result.output
+
+
+def test_sigterm_raised_as_terminated_is_exit_143(data_root, monkeypatch):
+    import flows.register
+    from flows.ephemeral import Terminated
+
+    def flow(path):
+        raise Terminated()
+
+    monkeypatch.setattr(flows.register, "register", flow)
+    assert runner.invoke(app, ["register", str(GOOD)]).exit_code == 143
+
+
+def test_other_errors_keep_their_traceback(data_root, monkeypatch):
+    import flows.register
+
+    def flow(path):
+        raise OSError(errno.EACCES, "Permission denied", "/x")
+
+    monkeypatch.setattr(flows.register, "register", flow)
+    result = runner.invoke(app, ["register", str(GOOD)])
+    assert result.exit_code == 1 and isinstance(result.exception, PermissionError)
