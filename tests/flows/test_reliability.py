@@ -164,3 +164,39 @@ def test_writes_from_many_threads_lose_and_double_nothing(tmp_path):
         for name, sql in LINEAGE_CHECKS.items():
             if name.startswith(("duplicate", "edges", "ancestry")) and "span" not in name:
                 assert wh.query(sql)[1] == [(0,)], name
+
+
+def test_a_second_writer_waits_for_the_first_then_gives_up_in_one_line(tmp_path):
+    """Issue 26: two curate runs on one data root. The second waits for the data root's lock
+    (taken before Prefect starts, so the two never race on Prefect's database migration), then
+    exits 4 naming the first; the first finishes as if alone."""
+    import subprocess
+    import time
+
+    from warehouse.lock import LOCK_FILE
+
+    from tests.support import REPO
+
+    inbox = tmp_path / "inbox"
+    good_videos(inbox, seeds=(0,))
+    root = tmp_path / "root"
+    env = {k: v for k, v in os.environ.items() if not k.startswith(("WORLDLINE_", "PREFECT_"))}
+    env |= {"WORLDLINE_DATA_ROOT": str(root), "PYTHONDONTWRITEBYTECODE": "1"}
+    command = [str(REPO / ".venv" / "bin" / "worldline"), "curate", str(inbox)]
+    first = subprocess.Popen(command, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not (root / LOCK_FILE).is_file() or f"pid {first.pid}," not in (root / LOCK_FILE).read_text():
+        assert time.monotonic() < deadline and first.poll() is None, "the first curate never took the lock"
+        time.sleep(0.05)
+    t0 = time.monotonic()
+    second = subprocess.run(command, env={**env, "WORLDLINE_LOCK_TIMEOUT": "2"}, cwd=REPO, capture_output=True,
+                            text=True, timeout=120)
+    waited = time.monotonic() - t0
+    out, errors = first.communicate(timeout=600)
+    holder = f"{root}: another worldline process (pid {first.pid}, command worldline curate {inbox})"
+    assert second.returncode == 4, second.stdout + second.stderr
+    assert second.stderr.strip().splitlines() == [f"{holder} is writing; waiting up to 2 s",
+                                                  f"{holder} is writing; waited 2 s (WORLDLINE_LOCK_TIMEOUT)"]
+    assert second.stdout == "" and 2 <= waited < 30
+    assert first.returncode == 0, out + errors
+    assert lineage_problems(root / "lineage.duckdb") == {}
