@@ -200,11 +200,19 @@ def _print_rows(cols: list[str], rows: list[tuple], fmt: str, title: str | None 
 def manifest_validate(paths: list[Path]) -> None:
     """Validate manifests: one line per invalid file (file, field, problem); exit 2 if any."""
     from tasks.manifests import ManifestError, load
+    from tasks.sim.mjcf import RobotFileError
+    from tasks.sim.scene import check_assets
 
     bad = 0
     for path in paths:
         try:
-            load(path)
+            manifest = load(path)
+            try:  # robot files present here must stay inside the robots root; a missing one is
+                check_assets(manifest)  # the machine's matter, said when a command simulates
+            except RobotFileError as exc:
+                raise ManifestError(f"{path}: {exc}") from None
+            except FileNotFoundError:
+                pass
             out.print(f"ok {path}", highlight=False)
         except ManifestError as exc:
             bad += 1

@@ -233,3 +233,21 @@ def test_other_errors_keep_their_traceback(data_root, monkeypatch):
     monkeypatch.setattr(flows.register, "register", flow)
     result = runner.invoke(app, ["register", str(GOOD)])
     assert result.exit_code == 1 and isinstance(result.exception, PermissionError)
+
+
+def test_validate_refuses_a_robot_file_that_leaves_the_robots_root(tmp_path, monkeypatch):
+    root, outside = tmp_path / "robots", tmp_path / "outside"
+    (root / "arm").mkdir(parents=True)
+    outside.mkdir()
+    (outside / "arm.xml").write_text("<mujoco/>")
+    (root / "arm" / "arm.xml").symlink_to(outside / "arm.xml")
+    monkeypatch.setenv("WORLDLINE_ROBOTS_ROOT", str(root))
+    text = (MANIFESTS / "bin_pick_dim_forklift.yaml").read_text()
+    manifest = tmp_path / "arm.yaml"
+    manifest.write_text(text.replace("  robot: builtin_arm\n", "  robot: ur5e\n  mjcf: arm/arm.xml\n"))
+    result = runner.invoke(app, ["manifest", "validate", str(manifest)])
+    assert result.exit_code == 2, result.output
+    line, = result.output.strip().splitlines()
+    assert line.startswith(f"{manifest}: embodiment.mjcf 'arm/arm.xml': ") and "outside the robots root" in line
+    (root / "arm" / "arm.xml").unlink()  # a robot file missing here is the machine's matter, not the manifest's
+    assert runner.invoke(app, ["manifest", "validate", str(manifest)]).exit_code == 0
