@@ -41,3 +41,35 @@ def test_curating_episode_videos_extends_their_lineage(prefect_harness, data_roo
         _, chain = wh.query(sql, {"artifact": clips[0][0]})
     kinds = [r[1] for r in chain]
     assert kinds[:2] == ["clip", "episode_video"] and "episode" in kinds and chain[-1][2] == digest
+
+
+def test_an_episode_finished_before_another_fails_is_recorded(prefect_harness, data_root, tmp_path, monkeypatch):
+    """Issue 26: lineage is written as each episode finishes, not in seed order at the end, so a
+    run that fails (or is interrupted) keeps every episode it finished. Episode 0 fails only
+    once episode 1 is on disk; before, episode 1 stayed on disk and out of lineage."""
+    import time
+
+    import pytest
+
+    import flows.simulate
+    from tasks.sim import episode
+
+    manifest = _small_manifest(tmp_path)
+    real = episode.rollout
+
+    def rollout(scenario, seed):
+        if seed == scenario.seed:
+            while not list(data_root.rglob("episode_000001/meta.json")):
+                time.sleep(0.05)
+            time.sleep(0.5)  # episode 1's task returns meanwhile
+            raise RuntimeError("the simulator failed")
+        return real(scenario, seed)
+
+    monkeypatch.setattr(flows.simulate.episode, "rollout", rollout)
+    with pytest.raises(RuntimeError, match="the simulator failed"):
+        simulate(str(manifest), 2)
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, runs = wh.query("SELECT status, message FROM runs")
+        _, recorded = wh.query("SELECT attrs->>'index' FROM stage_runs WHERE stage = 'simulate'")
+    assert runs == [("failed", "RuntimeError: the simulator failed")]
+    assert recorded == [("1",)]
