@@ -70,14 +70,15 @@ def _env(root: Path, api: str, **extra: str) -> dict[str, str]:
                   "PYTHONDONTWRITEBYTECODE": "1"} | extra
 
 
-def _worldline(args: list, root: Path, api: str, **extra: str) -> subprocess.CompletedProcess:
-    return subprocess.run([str(REPO / ".venv" / "bin" / "python"), "-m", "flows.cli", *map(str, args)],
+def _worldline(args: list, root: Path, api: str, prefix: list[str] = (), **extra: str) -> subprocess.CompletedProcess:
+    return subprocess.run([*prefix, str(REPO / ".venv" / "bin" / "python"), "-m", "flows.cli", *map(str, args)],
                           env=_env(root, api, **extra), cwd=REPO, capture_output=True, text=True, timeout=600)
 
 
-def _spawn(args: list, root: Path, api: str, **extra: str) -> subprocess.Popen:
-    """A command in a process group of its own, as a terminal starts it."""
-    return subprocess.Popen([str(REPO / ".venv" / "bin" / "python"), "-m", "flows.cli", *map(str, args)],
+def _spawn(args: list, root: Path, api: str, prefix: list[str] = (), **extra: str) -> subprocess.Popen:
+    """A command in a process group of its own, as a terminal starts it (``prefix``: setpriv,
+    which execs it, so the group's leader is the command)."""
+    return subprocess.Popen([*prefix, str(REPO / ".venv" / "bin" / "python"), "-m", "flows.cli", *map(str, args)],
                             env=_env(root, api, **extra), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True)
 
@@ -105,7 +106,7 @@ def tampering(whole: Path, work: Path, api: str) -> tuple[int, int]:
     shard.write_bytes(bytes(data))
     clips[0].write_bytes(clips[1].read_bytes())
     before = _counts(root / "lineage.duckdb")
-    verify = _worldline(["verify"], root, api)
+    verify = _worldline(["verify", "--format", "csv"], root, api)
     named = [p for p in (shard, clips[0]) if p.relative_to(root).as_posix() in verify.stdout + verify.stderr]
     tokenize = _worldline(["tokenize", shard.parent, "--steps", "1", "--size", "32"], root, api)
     after = _counts(root / "lineage.duckdb")
@@ -118,13 +119,13 @@ def tampering(whole: Path, work: Path, api: str) -> tuple[int, int]:
 def two_writers(batch: Path, work: Path, api: str, prefix: list[str]) -> tuple[int, int]:
     """A second curate while a first one writes: exit 4 after the lock timeout, the first unharmed."""
     root = work / "two_writers"
-    first = _spawn(["curate", batch], root, api)
+    first = _spawn(["curate", batch], root, api, prefix)
     lock = root / "worldline.lock"
     deadline = time.monotonic() + 120
     while time.monotonic() < deadline and not (lock.exists() and lock.read_text().strip()):
         time.sleep(0.2)
     t0 = time.perf_counter()
-    second = _worldline(["curate", batch], root, api, WORLDLINE_LOCK_TIMEOUT="3")
+    second = _worldline(["curate", batch], root, api, prefix, WORLDLINE_LOCK_TIMEOUT="3")
     waited = time.perf_counter() - t0
     first.communicate(timeout=600)
     problems = lineage_problems(root / "lineage.duckdb")
@@ -136,13 +137,13 @@ def two_writers(batch: Path, work: Path, api: str, prefix: list[str]) -> tuple[i
     return lost, silent
 
 
-def interrupts(batch: Path, whole: Path, work: Path, api: str) -> tuple[int, int]:
+def interrupts(batch: Path, whole: Path, work: Path, api: str, prefix: list[str]) -> tuple[int, int]:
     """SIGINT, then SIGTERM, to a running curate's process group; then a run to the end."""
     root = work / "interrupted"
     lost = silent = 0
     for sig, want in ((signal.SIGINT, 130), (signal.SIGTERM, 143)):
-        proc = _spawn(["curate", batch], root, api)
-        time.sleep(8)  # well into the analysis
+        proc = _spawn(["curate", batch], root, api, prefix)
+        time.sleep(15)  # past the start, into the analysis
         t0 = time.perf_counter()
         os.killpg(proc.pid, sig)
         try:
@@ -158,7 +159,7 @@ def interrupts(batch: Path, whole: Path, work: Path, api: str) -> tuple[int, int
         silent += (proc.returncode != want) + (took > 10) + left
         print(f"interrupt {sig.name}: exit {proc.returncode} (want {want}) after {took:.1f} s; "
               f"processes left: {left}")
-    resumed = _worldline(["curate", batch], root, api)
+    resumed = _worldline(["curate", batch], root, api, prefix)
     same = shard_digests(root) == shard_digests(whole)
     problems = lineage_problems(root / "lineage.duckdb")
     statuses = _query(root / "lineage.duckdb", "SELECT status, count(*) FROM runs GROUP BY 1 ORDER BY 1")
@@ -168,7 +169,7 @@ def interrupts(batch: Path, whole: Path, work: Path, api: str) -> tuple[int, int
     return lost, silent
 
 
-def disk_full(batch: Path, work: Path, api: str, expected: dict) -> tuple[int, int]:
+def disk_full(batch: Path, work: Path, api: str, expected: dict, prefix: list[str]) -> tuple[int, int]:
     """Shards on a 4 kB tmpfs: the run stops naming the folder and the stage and blames no input."""
     root = work / "disk_full"
     mount = root / "shards"
@@ -178,7 +179,7 @@ def disk_full(batch: Path, work: Path, api: str, expected: dict) -> tuple[int, i
         print("disk full: skipped (not root, or tmpfs cannot be mounted here)")
         return 0, 0
     try:
-        done = _worldline(["curate", batch], root, api)
+        done = _worldline(["curate", batch], root, api, prefix)
     finally:
         if subprocess.run(["umount", str(mount)], capture_output=True).returncode != 0:
             subprocess.run(["umount", "-l", str(mount)], check=False)
@@ -222,7 +223,8 @@ def main() -> int:
         print("-- issue 26: tampering, two writers, interrupts, a full disk")
         silent = 0
         for extra_lost, extra_silent in (tampering(whole, work, api), two_writers(batch, work, api, prefix or []),
-                                         interrupts(batch, whole, work, api), disk_full(batch, work, api, expected)):
+                                         interrupts(batch, whole, work, api, prefix or []),
+                                         disk_full(batch, work, api, expected, prefix or [])):
             lost += extra_lost
             silent += extra_silent
 
