@@ -142,12 +142,22 @@ _first_signal: int | None = None
 _redelivery = False  # Prefect's SIGTERM bridge sends the signal it caught once more, to the handler it replaced
 
 
+# Called by a forced exit before it stops the servers (recording.py closes its run rows here:
+# on a busy machine the flow's thread may not have reached them within GRACE_S).
+before_forced_exit: list = []
+
+
 def _force_exit(code: int, why: str) -> None:
     try:
         print(f"worldline: {why}; stopping now", file=sys.stderr, flush=True)
         sys.stdout.flush()
     except Exception:  # noqa: BLE001 (a closed or full stream must not stop the exit)
         pass
+    for hook in list(before_forced_exit):
+        try:
+            hook()
+        except Exception:  # noqa: BLE001 (nothing may stop the exit)
+            pass
     stop_servers(force=True)
     os._exit(code)
 

@@ -14,6 +14,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
+from flows import ephemeral
 from schemas.hashing import stable_id
 from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.records import LineageBatch, RunRecord
@@ -92,6 +93,7 @@ def _recorded(flow: str, settings: Settings, manifest: ScenarioManifest | None, 
                                       prefect_flow_run_id=prefect_id, params=params or {}))
         warehouse.close_interrupted_runs(_LIVE)  # rows left 'running' by a killed process
         ctx = RunContext(run_id=run_id, flow=flow, warehouse=warehouse, manifest_hash=digest, settings=settings)
+        ephemeral.before_forced_exit.append(on_forced_exit := lambda: _close_on_forced_exit(warehouse, run_id))
         try:
             yield ctx
         except BaseException as exc:
@@ -102,5 +104,15 @@ def _recorded(flow: str, settings: Settings, manifest: ScenarioManifest | None, 
             message = f"{len(ctx.failures)} input(s) failed: " + "; ".join(ctx.failures)[:1800]
         warehouse.finish_run(run_id, ctx.status, message)
     finally:
+        if "on_forced_exit" in locals():
+            ephemeral.before_forced_exit.remove(on_forced_exit)
         _LIVE.discard(run_id)
         warehouse.close()
+
+
+def _close_on_forced_exit(warehouse: Warehouse, run_id: str) -> None:
+    """The run row closed as interrupted when the command is forced out before the flow's thread
+    got there; skipped when that thread holds the warehouse (it would never let go)."""
+    if run_id in _LIVE and warehouse._lock.acquire(timeout=1.0):
+        warehouse._lock.release()
+        warehouse.finish_run(run_id, "failed", f"interrupted by {ephemeral.signal_name() or 'a signal'}")
