@@ -184,11 +184,28 @@ def spawn(name: str, args: list[str], env: dict[str, str], log: Path) -> Child:
     try:
         with open(log, "ab") as out:
             proc = subprocess.Popen(args, stdin=subprocess.DEVNULL, stdout=out, stderr=subprocess.STDOUT,
-                                    env=env, cwd=PROJECT_ROOT, start_new_session=True)
+                                    env=env, cwd=PROJECT_ROOT, start_new_session=True,
+                                    preexec_fn=_dies_with(os.getpid()) if main else None)
     finally:
         if ignored:
             signal.signal(signal.SIGINT, signal.SIG_IGN)
     return Child(name, proc, log)
+
+
+def _dies_with(parent: int):
+    """A preexec_fn: the child gets SIGINT (which stops the server and the worker cleanly) when
+    this process dies, SIGKILL included, so a killed `worldline server` leaves no worker running
+    deployments (issue 26). Linux's PR_SET_PDEATHSIG fires when the *thread* that started the
+    child exits, so it is set only for children the main thread starts; a parent already gone
+    by the time it is set is caught by the pid check."""
+    def arm() -> None:
+        if sys.platform.startswith("linux"):
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGINT, 0, 0, 0)  # PR_SET_PDEATHSIG
+            if os.getppid() != parent:
+                os._exit(1)
+    return arm
 
 
 def _died(child: Child) -> StackError:

@@ -356,3 +356,32 @@ def test_serve_runs_until_ctrl_c_then_leaves_nothing_behind(tmp_path, sigint):
             os.kill(pid, 0)
         assert group_members(pid) == []
     assert (tmp_path / "prefect" / "server.log").is_file() and (tmp_path / "prefect" / "worker.log").is_file()
+
+
+@pytest.mark.slow
+def test_a_killed_serve_leaves_no_server_or_worker_behind(tmp_path):
+    """SIGKILL gives serve no chance to stop its children: they stop because their parent died."""
+    env = {**os.environ, "WORLDLINE_DATA_ROOT": str(tmp_path)}
+    proc = subprocess.Popen([sys.executable, "-c", "from flows.server import serve; serve(deploy=False)"],
+                            cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    try:
+        for line in proc.stdout:
+            lines.append(line)
+            if line.startswith("Ctrl-C"):
+                break
+        pids = [int(p) for p in re.findall(r"pid (\d+)", "".join(lines))]
+        assert len(pids) == 2, "".join(lines)
+        proc.kill()
+        proc.wait(timeout=30)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and any(group_members(pid) for pid in pids):
+        time.sleep(0.5)
+    left = {pid: group_members(pid) for pid in pids if group_members(pid)}
+    for pid in left:
+        os.killpg(pid, signal.SIGKILL)
+    assert left == {}, "the server or the worker outlived a SIGKILLed serve"
