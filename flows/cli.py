@@ -491,7 +491,7 @@ def tokenize(
         result = tokenize_flow(shards, preset, steps, size, batch_size=batch, crop=crop, motion_weight=motion_weight,
                                focus_crops=focus_crops, init=init)
     except (FileNotFoundError, ValueError) as exc:
-        _fail(str(exc))
+        _refuse(exc)
     psnr = f", train PSNR {result['final_psnr']:.2f} dB" if result["final_psnr"] is not None else " (already trained)"
     out.print(f"checkpoint {result['checkpoint_id']}{psnr}; {len(result['token_shards'])} new token shards "
               f"from {result['clips']} clips", highlight=False)
@@ -544,7 +544,7 @@ def train(
         for extra in also or []:
             episode_folders(extra, Settings().data_root.resolve())
     except FileNotFoundError as exc:
-        _fail(str(exc))
+        _refuse(exc)
     cameras = read_meta(folders[0]).get("cameras", [])
     if camera is not None and camera not in cameras:
         _fail(f"--camera {camera!r}: the episodes of {manifest} have cameras {', '.join(cameras)}")
@@ -561,7 +561,7 @@ def train(
                             camera=camera, patch=patch, change_weight=change_weight,
                             self_condition=self_condition, action_totals=action_totals, also=also)
     except (FileNotFoundError, ValueError) as exc:
-        _fail(str(exc))
+        _refuse(exc)
     done = {True: "trained", False: "already trained"}
     out.print(f"pre-trained {result['pretrain_checkpoint_id']} ({done[result['pretrained']]}), post-trained "
               f"{result['posttrain_checkpoint_id']} ({done[result['posttrained']]}) on {result['episodes']} episodes",
@@ -716,7 +716,7 @@ def evaluate_physics_cmd(
         result = evaluate_physics(str(manifest), folder, tokenizer_folder, episodes,
                                   first_seed, camera, horizon)
     except (FileNotFoundError, ValueError) as exc:
-        _fail(str(exc))
+        _refuse(exc)
     checks = ", ".join(f"{k} {'passed' if v else 'failed'}" for k, v in result["checks"].items())
     out.print(f"evaluation {result['evaluation_id']} ({result['windows']} windows, {result['moving']} with the "
               f"package moving): {checks}; table and plots under {result['folder']}", highlight=False)
@@ -780,7 +780,7 @@ def verify(
                     _fail(f"--manifest {manifest}: no such manifest in lineage")
             rows = [integrity.Recorded(*r) for r in claims.files(wh, manifest)]
     except WarehouseError as exc:
-        _fail(str(exc))
+        _refuse(exc)
     findings, checked, hashed = integrity.audit(rows, settings.data_root)
     short = (lambda v: v and v[:12]) if fmt == "table" else (lambda v: v)  # noqa: E731
     _print_rows(["problem", "kind", "artifact_id", "uri", "lineage_sha256", "file_sha256"],

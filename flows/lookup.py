@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from schemas.errors import StepMissing
 from tasks import integrity
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError
 from warehouse import integrity as claims
@@ -144,7 +145,7 @@ def world_model_folder(warehouse: Warehouse | None, root: Path, name: str | None
                                   f"{POSTTRAINED_WORLD_MODEL} ORDER BY recorded_at DESC, artifact_id LIMIT 1"
                                   ) if warehouse is not None else ([], [])
         if not rows:
-            raise FileNotFoundError("no post-trained world model in lineage: run `worldline train` first")
+            raise StepMissing("no post-trained world model in lineage: run `worldline train` first")
         folder = integrity.path_of(rows[0][0], Path(root).resolve()).parent
         verified_checkpoint(warehouse, root, folder)
     config = checkpoints.read_config(folder)

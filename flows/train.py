@@ -23,6 +23,7 @@ from flows.report import publish as publish_report
 from models.tokenizer import TokenizerConfig
 from models.world_model import WorldModel, WorldModelConfig, preset
 from schemas import paths
+from schemas.errors import StepMissing
 from schemas.hashing import content_hash, stable_id
 from schemas.manifest import manifest_hash
 from schemas.records import LineageBatch, StageRunRecord
@@ -87,7 +88,7 @@ def tokenizer_folder(run: RunContext, tokenizer: str | None, variant: str | None
                                   "artifact_id IN (SELECT parent_id FROM edges WHERE relation = 'encoded_by') "
                                   "ORDER BY recorded_at DESC, artifact_id LIMIT 1")
     if not rows:
-        raise FileNotFoundError("no discrete tokenizer with token shards in lineage: run `worldline tokenize` first")
+        raise StepMissing("no discrete tokenizer with token shards in lineage: run `worldline tokenize` first")
     checkpoint_id, uri = checkpoint_by_id(run.warehouse, rows[0][0], which, "tokenizer", root)
     return integrity.path_of(uri, root).parent, checkpoint_id
 
@@ -100,7 +101,7 @@ def token_inputs(run: RunContext, tokenizer_id: str, token_shards: str | None):
         paths.resolve(root, paths.TOKEN_SHARD_FILE, tokenizer_id=tokenizer_id, index=0).parent
     files = data.find_shards([place])
     if not files:
-        raise FileNotFoundError(f"{place}: no token shards (run `worldline tokenize` first)")
+        raise StepMissing(f"{place}: no token shards (run `worldline tokenize` first)")
     shards = [(path, *_known(run, "token_shard", path, root, "token shard",
                              "train reads token shards `worldline tokenize` wrote")) for path in files]
     check_sources(run, [s for _, s, _ in shards], root)
@@ -140,7 +141,7 @@ def episode_folders(manifest: str, root: Path):
         place = paths.resolve(root, paths.EPISODES_OF_MANIFEST, manifest_hash=manifest)
     found = data.episode_dirs(place)
     if not found:
-        raise FileNotFoundError(f"{manifest}: no simulated episodes under {place} (run `worldline simulate` first)")
+        raise StepMissing(f"{manifest}: no simulated episodes under {place} (run `worldline simulate` first)")
     return found, scenario
 
 

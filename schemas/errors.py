@@ -3,7 +3,7 @@
 Every `worldline` command ends with one of these codes (README, "Exit codes"):
 
     0 done, 1 partial, 2 invalid input, 3 not built, 4 busy (lock timeout),
-    5 environment (disk full, corrupt warehouse), 130 interrupted.
+    5 environment (disk full, corrupt warehouse), 130 interrupted (143 after SIGTERM).
 
 Stage code raises a `WorldlineError` subclass with a one-line message naming the file and the
 problem; the CLI prints the message alone and exits with the class's code.
@@ -36,6 +36,11 @@ class NotBuilt(WorldlineError):
     """A step this one needs has not been run yet."""
 
     exit_code = EXIT_NOT_BUILT
+
+
+class StepMissing(NotBuilt, FileNotFoundError):
+    """What this step reads was never made ("run `worldline tokenize` first"); a
+    FileNotFoundError too, so whatever handles a missing file handles it."""
 
 
 class Busy(WorldlineError):

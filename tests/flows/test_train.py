@@ -126,14 +126,14 @@ def test_train_pretrains_posttrains_records_lineage_and_skips_on_rerun(prefect_h
                            "WHERE e.child_id = $c AND a.kind = 'episode' GROUP BY 1 ORDER BY 2", {"c": both_post})
     assert sorted(rows) == sorted([(mh, 2), (other_mh, 1)])
     missing = runner.invoke(app, ["train", str(manifest), "--also", "0" * 64])
-    assert missing.exit_code == 2 and "no simulated episodes" in missing.output
+    assert missing.exit_code == 3 and "no simulated episodes" in missing.output  # not built
 
 
 def test_cli_refuses_bad_train_arguments(data_root, tmp_path):
     bad = runner.invoke(app, ["train", str(MANIFESTS / "conveyor_push.yaml"), "--preset", "huge"])
     assert bad.exit_code == 2 and "unknown world model preset" in bad.output
     none = runner.invoke(app, ["train", str(MANIFESTS / "conveyor_push.yaml")])
-    assert none.exit_code == 2 and "no simulated episodes" in none.output
+    assert none.exit_code == 3 and "no simulated episodes" in none.output  # not built
     missing = runner.invoke(app, ["train", str(tmp_path / "nothing.yaml")])
     assert missing.exit_code == 2
     garbage = tmp_path / "tok"
