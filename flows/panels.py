@@ -12,7 +12,7 @@ import pyarrow.parquet as pq
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
-from flows.lookup import verified_world_model
+from flows.lookup import verified_file, verified_world_model
 from flows.params import PanelEpisodes
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, progress, publish, write_json
@@ -79,7 +79,10 @@ def simulate_variants(run: RunContext, spec: PanelSpec, variants: list[ScenarioM
         for index in range(len(pv.seeds)):
             key = stable_id("episode", pv.manifest_hash, str(index))
             done = read_episode(root, pv.manifest_hash, index) if not run.pending("simulate", [key]) else None
-            if done is not None:
+            if done is not None:  # reused: its files must still be the ones lineage recorded (issue 26)
+                verified_file(run.warehouse, root, done.table, "episode", "episode")
+                for video in done.videos.values():
+                    verified_file(run.warehouse, root, video, "episode_video", "episode video")
                 out[(pv.cell, index)] = done
             else:
                 todo[(pv.cell, index)] = (key, pv.manifest_hash, time.perf_counter(),

@@ -135,3 +135,19 @@ def test_world_model_verdicts_come_from_generated_frames(prefect_harness, data_r
     assert episode["world"] in (None, True, False) and "in the frames" in episode["world_reason"] or \
         episode["world_reason"].startswith(("goal marker not found", "package seen in only"))
     assert body["world_model"].endswith("wm")
+
+
+def test_a_reused_episode_whose_files_changed_is_refused(prefect_harness, data_root, tmp_path):
+    import pytest
+
+    from schemas.errors import TamperedArtifact
+
+    manifest, grid = _tiny(tmp_path)
+    grid.write_text(GRID.replace("episodes: 2", "episodes: 1"))
+    panels(str(manifest), str(grid))
+    video = sorted((data_root / "episodes").rglob("*.mp4"))[0]
+    data = bytearray(video.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    video.write_bytes(bytes(data))
+    with pytest.raises(TamperedArtifact, match=rf"^{video}: sha256 \w+ differs from lineage's"):
+        panels(str(manifest), str(grid))
