@@ -18,7 +18,7 @@ demo: install
 	$(BIN)/worldline demo
 
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 # Debian's ffmpeg: the `scenedetect` baseline of bench/curate_speed.py and the concat in curate_memory.py.
 bench-deps:
