@@ -174,10 +174,12 @@ def test_a_busy_data_root_is_exit_4_in_one_line_before_prefect_starts(data_root,
     assert not (data_root / "lineage.duckdb").exists() and not (data_root / "prefect" / "prefect.db").exists()
 
 
-def test_a_damaged_warehouse_raised_inside_the_flow_is_exit_5_in_one_line(tmp_path):
+def test_a_damaged_warehouse_raised_inside_the_flow_is_exit_5_in_one_line(prefect_harness, tmp_path):
     """recorded_run refuses the warehouse inside the flow run (EnvironmentFault); Prefect hands
-    the error back to the command as itself, which ends with its line and its code."""
+    the error back to the command as itself, which ends with its line and its code. The command
+    uses the session's Prefect API (no temporary server of its own to start: ~20 s saved)."""
     import numpy as np
+    from prefect.settings import PREFECT_API_URL
 
     root = tmp_path / "root"
     root.mkdir()
@@ -185,7 +187,8 @@ def test_a_damaged_warehouse_raised_inside_the_flow_is_exit_5_in_one_line(tmp_pa
     damaged.write_bytes(np.random.default_rng(5).integers(0, 256, 300_000, np.uint8).tobytes())
     env = {k: v for k, v in os.environ.items() if not k.startswith(("WORLDLINE_", "PREFECT_"))}
     result = subprocess.run([sys.executable, "-m", "flows.cli", "register", str(GOOD)], capture_output=True, text=True,
-                            cwd=REPO, env={**env, "WORLDLINE_DATA_ROOT": str(root)}, timeout=300)
+                            cwd=REPO, env={**env, "WORLDLINE_DATA_ROOT": str(root),
+                                           "PREFECT_API_URL": PREFECT_API_URL.value()}, timeout=300)
     assert result.returncode == EXIT_ENVIRONMENT, result.stdout + result.stderr
     assert result.stderr.strip().splitlines()[-1].startswith(f"{damaged}: the warehouse is damaged (")
     assert "Traceback" not in result.stdout + result.stderr
