@@ -31,11 +31,14 @@ import time
 from collections import Counter, defaultdict
 from pathlib import Path
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tasks.curate.analyse import analyse_video  # noqa: E402
 from tasks.curate.config import load_config  # noqa: E402
-from tasks.curate.decode import DecodeError  # noqa: E402
+from tasks.curate.decode import DecodeError, analysis_frames  # noqa: E402
+from tasks.curate.filters import run_filters  # noqa: E402
 from tasks.curate.scenes import cut_f1  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -84,16 +87,23 @@ LABELS = {
 FILE_LABELS = {"corrupted_frames": "decode reported corrupt or missing frames"}
 
 
+def judged(clips):
+    """The clips a filter judged: a span shorter than ``min_scene_s`` is a length policy, not a
+    verdict on the footage, so it does not vote."""
+    return [c for c in clips if c.reject_reason != "too_short"]
+
+
 def file_verdict(clips) -> tuple[str, dict[str, int]]:
-    """The outcome covering most frames, and the frames of each outcome."""
+    """The outcome covering most judged frames, and the frames of each outcome."""
     frames: Counter = Counter()
-    for c in clips:
+    for c in judged(clips):
         outcome = "reject" if not c.kept else ("tag_text" if "overlay:text" in c.tags else "keep")
         frames[outcome] += c.end_frame - c.start_frame
     return (frames.most_common(1)[0][0] if frames else "reject"), dict(frames)
 
 
 def majority(clips, predicate) -> bool:
+    clips = judged(clips)
     total = sum(c.end_frame - c.start_frame for c in clips)
     hit = sum(c.end_frame - c.start_frame for c in clips if predicate(c))
     return total > 0 and hit * 2 > total
@@ -108,6 +118,21 @@ def why(clips) -> str:
     return "; ".join(parts)
 
 
+def whole_file(path: Path, analysis, config) -> list:
+    """The file judged by the filters as one scene (a file shorter than ``min_scene_s``)."""
+    frames = list(analysis_frames(path, config.analysis))
+    if len(frames) < 2:
+        return list(analysis.clips)
+    images = np.stack([f.image for f in frames])
+    times = np.asarray([f.time for f in frames])
+    verdict, _ = run_filters(images, times, config.filters())
+    first = analysis.clips[0]
+    return [first.model_copy(update={"start_frame": frames[0].index, "end_frame": frames[-1].index + 1,
+                                     "kept": verdict.keep, "reject_stage": verdict.stage,
+                                     "reject_reason": verdict.reason, "tags": verdict.tags,
+                                     "scores": {k: v for k, v in verdict.scores.items() if np.isfinite(v)}})]
+
+
 def score_file(name: str, path: Path, truth: dict, config) -> dict:
     t0 = time.perf_counter()
     sha = hashlib.sha256(path.read_bytes()).hexdigest()
@@ -116,7 +141,10 @@ def score_file(name: str, path: Path, truth: dict, config) -> dict:
     except DecodeError as exc:
         return {"file": name, "error": str(exc), "verdict": "reject", "seconds": time.perf_counter() - t0,
                 "clips": [], "cuts": [], "transitions": [], "corrupt": True}
-    spans = [c for c in analysis.clips]
+    spans = list(analysis.clips)
+    whole = False
+    if not judged(spans):  # the whole file is shorter than a scene: judge it as one, as labelled
+        spans, whole = whole_file(path, analysis, config), True
     starts = sorted(c.start_frame for c in spans)
     # A cut is every clip start after the first that the splitter did not make by splitting a
     # long shot; transitions are not clips, so a clip starting after one is not a cut either.
@@ -127,7 +155,7 @@ def score_file(name: str, path: Path, truth: dict, config) -> dict:
     verdict, frames = file_verdict(spans)
     d = analysis.decode
     return {"file": name, "verdict": verdict, "verdict_frames": frames, "clips": spans, "cuts": cuts,
-            "transitions": transitions, "starts": starts, "why": why(spans),
+            "transitions": transitions, "starts": starts, "why": ("whole file judged: " if whole else "") + why(spans),
             "corrupt": bool(d.get("corrupt") or d.get("missing") or d.get("decode_errors")),
             "seconds": time.perf_counter() - t0}
 
@@ -168,11 +196,10 @@ def report(set_name: str, results: list[dict]) -> dict:
     print(f"\n=== {set_name}: {len(results)} files")
     out = {}
     lines = []
-    for strict in (True, False):
-        group = [r for r in results if bool(r["truth"].get("uncertain")) != strict]
+    for tag in ("certain", "uncertain", "all"):
+        group = [r for r in results if tag == "all" or bool(r["truth"].get("uncertain")) == (tag == "uncertain")]
         if not group:
             continue
-        tag = "certain" if strict else "uncertain"
         pred_cuts = hits = truth_cuts = 0
         for r in group:
             t = r["truth"]
