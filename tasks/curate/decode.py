@@ -83,7 +83,9 @@ class AnalysisConfig(BaseModel):
     # have. What reads the stream knows: the scene splitter fills in rows for the frames left
     # out and scales the cut detector's ratio by the gap, a cut inside a gap leaves its frames
     # to neither scene, and dedup decodes the frames it samples exactly when a pair needs the
-    # pixel check (``frames_at``). It takes about 0.8 ms a 720p source frame off the analysis.
+    # pixel check (``frames_at``), and the scene splitter has the frames of a gap decoded exactly
+    # (``ExactFrames``) where the frames around it differ enough to hide a cut. It takes about
+    # 0.8 ms a 720p source frame off the analysis.
     skip_unreferenced: bool = True
 
 
@@ -327,66 +329,105 @@ def _analysis_stream(container, config: AnalysisConfig):
     return stream
 
 
-def frames_at(path: Path | str, indices, config: AnalysisConfig = AnalysisConfig(),
-              info: SourceInfo | None = None) -> dict[int, np.ndarray]:
-    """Analysis images of the frames at ``indices`` (frame numbers as ``analysis_frames``
-    counts them), each exactly as a pass decoding every frame makes it, even a frame that
-    pass leaves undecoded (``skip_unreferenced``).
+class ExactFrames:
+    """Analysis images of chosen frames, each exactly as a pass decoding every frame makes it,
+    even a frame that pass leaves undecoded (``skip_unreferenced``). Keep one open while a
+    stream is analysed: the packet index is read once and the container stays open, so asking
+    for frames in increasing order decodes forward from where the last request stopped, or
+    seeks to the key frame before a wanted frame when that skips a key frame.
 
-    Seeks to the key frame before each wanted frame when that skips a key frame, then decodes
-    forward only what the wanted frames are predicted from: the reference frames. Frames that
-    cannot be decoded are absent from the result.
+    Decodes only what the wanted frames are predicted from (the reference frames) on the way.
+    Frames that cannot be decoded are absent from the result. ``close()`` when done.
     """
-    path = Path(path)
-    info = info or probe(path)
-    pts, keys, _, _ = frame_pts(path)
-    remaining = sorted({int(i) for i in indices if 0 <= int(i) < len(pts)})
-    wanted = {int(pts[i]) for i in remaining}
-    shrink = _shrinker(info, config)
-    out: dict[int, np.ndarray] = {}
-    container = open_video(path)
-    try:
-        stream = _analysis_stream(container, config)
-        length_size = nal_length_size(stream)
-        frames, position = None, -1  # position: the last frame index decoded
+
+    def __init__(self, path: Path | str, config: AnalysisConfig = AnalysisConfig(), info: SourceInfo | None = None):
+        self.path = Path(path)
+        info = info or probe(self.path)
+        self.pts, self.keys, self.time_base, self.start = frame_pts(self.path)
+        self.shrink = _shrinker(info, config)
+        self.config = config
+        self.container = None
+        self.frames = None
+        self.position = -1  # the last frame index decoded
+        self.skipped: set[int] = set()  # pts of packets the open reader left undecoded
+
+    def time(self, index: int) -> float:
+        """Seconds since the stream start of frame ``index`` (as ``analysis_frames`` gives it)."""
+        return float((int(self.pts[index]) - self.start) * self.time_base)
+
+    def get(self, indices) -> dict[int, np.ndarray]:
+        pts, keys = self.pts, self.keys
+        remaining = sorted({int(i) for i in indices if 0 <= int(i) < len(pts)})
+        wanted = {int(pts[i]) for i in remaining}
+        out: dict[int, np.ndarray] = {}
+        if self.container is None and remaining:
+            self.container = open_video(self.path)
+            self.stream = _analysis_stream(self.container, self.config)
+            self.length_size = nal_length_size(self.stream)
         while remaining:
             target = remaining[0]
             key = int(np.searchsorted(keys, pts[target], side="right")) - 1
             key_index = int(np.searchsorted(pts, keys[key])) if key >= 0 else 0
-            if frames is None or key_index > position + 1:
-                if key_index > 0:
+            # Continue forward unless that skips a key frame, or the wanted frame was behind
+            # us or already left undecoded (packets run ahead of frames by the reorder delay).
+            if (self.frames is None or key_index > self.position + 1 or target <= self.position
+                    or int(pts[target]) in self.skipped):
+                if key_index > 0 or self.frames is not None:
                     try:
-                        container.seek(int(pts[key_index]), stream=stream, backward=True)
+                        self.container.seek(int(pts[key_index]), stream=self.stream, backward=True)
                     except av.FFmpegError:
                         break  # what was decoded so far stands
-                    position = key_index - 1
-                frames = _frames_towards(container.demux(stream), stream, wanted, length_size)
-            for frame in frames:
+                    self.stream.codec_context.flush_buffers()
+                self.position = key_index - 1
+                self.wanted, self.skipped = set(), set()
+                self.frames = _frames_towards(self.container.demux(self.stream), self.stream, self.wanted,
+                                              self.length_size, self.skipped)
+            self.wanted.clear()
+            self.wanted.update(wanted)  # what the open packet reader must not leave undecoded
+            for frame in self.frames:
                 index = int(np.searchsorted(pts, frame.pts)) if frame.pts is not None else -1
-                if index < 0 or index >= len(pts) or pts[index] != frame.pts or index <= position:
+                if index < 0 or index >= len(pts) or pts[index] != frame.pts or index <= self.position:
                     continue  # pre-roll of a seek, or a frame the index does not know
-                position = index
+                self.position = index
                 if frame.pts in wanted and not frame.is_corrupt:
-                    out[index] = shrink(frame)
-                if position >= target:
+                    out[index] = self.shrink(frame)
+                if self.position >= target:
                     break
             else:
-                break  # the stream ended
-            remaining = [i for i in remaining if i > position]
+                self.frames = None  # the stream ended
+                break
+            remaining = [i for i in remaining if i > self.position]
+        return out
+
+    def close(self) -> None:
+        if self.container is not None:
+            self.container.close()
+            self.container = self.frames = None
+
+
+def frames_at(path: Path | str, indices, config: AnalysisConfig = AnalysisConfig(),
+              info: SourceInfo | None = None) -> dict[int, np.ndarray]:
+    """Analysis images of the frames at ``indices`` (frame numbers as ``analysis_frames``
+    counts them), each exactly as a pass decoding every frame makes it (see ``ExactFrames``)."""
+    exact = ExactFrames(path, config, info)
+    try:
+        return exact.get(indices)
     finally:
-        container.close()
-    return out
+        exact.close()
 
 
-def _frames_towards(packets, stream, wanted: set[int], length_size: int | None) -> Iterator:
+def _frames_towards(packets, stream, wanted: set[int], length_size: int | None,
+                    skipped: set[int] | None = None) -> Iterator:
     """Decoded frames of the remaining ``packets``, leaving out unreferenced frames that are not
-    ``wanted`` (by pts); the decoder is drained at the end of the stream."""
+    ``wanted`` (by pts; their pts go to ``skipped``); the decoder is drained at the end."""
     try:
         for packet in packets:
             if packet.size == 0:
                 continue
             if (length_size is not None and packet.pts not in wanted
                     and not is_reference(packet, length_size)):
+                if skipped is not None and packet.pts is not None:
+                    skipped.add(packet.pts)
                 continue
             try:
                 yield from packet.decode()
