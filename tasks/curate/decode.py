@@ -446,6 +446,10 @@ def _packets(container, stream, report: DecodeReport, path: Path) -> Iterator:
         report.problems.append(f"{path}: demux stopped early ({error.strerror or error})")
 
 
+# Frames held back to put output pts in order (a packed B-frame swaps two neighbours).
+REORDER_DEPTH = 2
+
+
 def analysis_frames(
     path: Path | str,
     config: AnalysisConfig = AnalysisConfig(),
@@ -474,10 +478,18 @@ def analysis_frames(
         step = 1.0 / info.fps
         last_time: float | None = None
 
-        def emit(frame) -> AnalysisFrame | None:
+        # Frames wait in a short queue and leave it in the decoder's output order, each stamped
+        # with the smallest pts among those waiting. The decoder's order is display order; its
+        # pts normally agree, but MPEG-4 Part 2 in AVI with packed B-frames stamps output frames
+        # 1, 2, 4, 3, 5, 7, 6, ...: read as they come, every swapped pair looked like a missing
+        # frame plus a repeated one (makeup_webcam.avi: 54 "missing" and 54 "corrupt" of 164).
+        held: list[tuple[object, bool, np.ndarray]] = []  # (pts, corrupt, image) in output order
+        stamps: list[int] = []  # heap of the pts of the frames in `held`
+
+        def emit(pts, corrupt: bool, image: np.ndarray) -> AnalysisFrame | None:
             nonlocal counted, last_time
-            if frame.pts is not None and pending and pending[0] <= frame.pts:
-                while pending and pending[0] < frame.pts:
+            if pts is not None and pending and pending[0] <= pts:
+                while pending and pending[0] < pts:
                     gone = heapq.heappop(pending)
                     counted += 1
                     if gone in unreferenced:
@@ -485,19 +497,31 @@ def analysis_frames(
                         report.unreferenced += 1
                     else:
                         report.missing += 1
-                if pending and pending[0] == frame.pts:
+                if pending and pending[0] == pts:
                     heapq.heappop(pending)
-                time = float((frame.pts - start) * tb)
+                time = float((pts - start) * tb)
             else:  # no usable pts: trust the decoder's order
                 time = 0.0 if last_time is None else last_time + step
             index = counted
             counted += 1
-            if frame.is_corrupt or (last_time is not None and time <= last_time):  # or a repeated pts
+            if corrupt or (last_time is not None and time <= last_time):  # or a repeated pts
                 report.corrupt += 1
                 return None
             last_time = time
             report.frames += 1
-            return AnalysisFrame(index=index, time=time, image=shrink(frame))
+            return AnalysisFrame(index=index, time=time, image=image)
+
+        def take(frame) -> None:
+            held.append((frame.pts, bool(frame.is_corrupt), shrink(frame)))
+            if frame.pts is not None:
+                heapq.heappush(stamps, frame.pts)
+
+        def release(keep: int) -> Iterator[AnalysisFrame]:
+            while len(held) > keep:
+                pts, corrupt, image = held.pop(0)
+                item = emit(heapq.heappop(stamps) if pts is not None else None, corrupt, image)
+                if item is not None:
+                    yield item
 
         for packet in _packets(container, stream, report, path):
             if packet.size == 0:
@@ -513,18 +537,16 @@ def analysis_frames(
                 report.decode_errors += 1
                 continue
             for frame in frames:
-                item = emit(frame)
-                if item is not None:
-                    yield item
+                take(frame)
+            yield from release(REORDER_DEPTH)
         try:
             frames = stream.decode(None)
         except av.FFmpegError:
             frames = []
             report.decode_errors += 1
         for frame in frames:
-            item = emit(frame)
-            if item is not None:
-                yield item
+            take(frame)
+        yield from release(0)
         report.unreferenced += len(unreferenced)
         report.missing += len(pending) - len(unreferenced)
     finally:

@@ -192,6 +192,24 @@ def test_real_footage_decodes_fully():
     assert (report.unreferenced, report.missing) == (115, 0)
 
 
+def test_packed_b_frames_are_frames_not_corruption():
+    """MPEG-4 Part 2 in AVI with packed B-frames: the decoder stamps its output 1, 2, 4, 3, ...;
+    every frame is a good frame, in the decoder's order, with increasing times."""
+    path = DATA.parent / "videos-dev" / "makeup_webcam.avi"
+    if not path.exists():
+        pytest.skip("../shared/data is not present")
+    report = DecodeReport()
+    frames = list(analysis_frames(path, report=report))
+    assert (len(frames), report.missing, report.corrupt, report.problems) == (164, 0, 0, [])
+    assert [f.index for f in frames] == list(range(164))
+    assert np.all(np.diff([f.time for f in frames]) > 0)
+    with av.open(str(path)) as container:  # each frame is the picture the decoder gave in that place
+        decoded = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    for i in (3, 4, 100):
+        want = cv2.resize(decoded[i], frames[i].image.shape[1::-1], interpolation=cv2.INTER_AREA)
+        assert np.abs(want.astype(int) - frames[i].image.astype(int)).mean() < 2.0
+
+
 def test_skipping_deblocking_on_unreferenced_frames_cannot_drift(make_video):
     """"noref" leaves every frame another frame predicts from (all I and P frames) exactly as
     the full decode has it; "all" lets the error of the skipped deblocking spread into them."""
