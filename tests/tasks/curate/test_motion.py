@@ -3,6 +3,8 @@ known offset, so the true camera motion is exact)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -133,3 +135,46 @@ def test_a_held_slide_with_codec_ringing_is_left_to_the_video_type_filter():
     assert verdict.keep, verdict.scores
     # The same stillness on camera footage is static.
     assert judge(np.repeat(crops(STEADY)[:1], T, axis=0), TIMES, MotionConfig()).reason == "static"
+
+
+def test_handheld_sway_and_tremor_is_kept_but_a_whip_pan_is_shake():
+    # A hand-held camera: a slow sway of a few px and a 1 px tremor every frame. Integrated
+    # frame by frame at 30 fps the tremor once read as shake; sampled at 10 Hz it is small and
+    # slow enough. A phone swung back and forth twice a second is not.
+    rng = np.random.default_rng(8)
+    sway = np.stack([4 * np.sin(2 * np.pi * 0.4 * TIMES), 2 * np.sin(2 * np.pi * 0.3 * TIMES + 1)], axis=1)
+    handheld = judge(crops(sway + rng.normal(0, 1.0, (T, 2))), TIMES, MotionConfig())
+    assert handheld.keep, handheld.scores
+    assert handheld.scores["shake"] < MotionConfig().shake_min / 2
+    whip = np.stack([30 * np.sin(2 * np.pi * 2 * TIMES), 5 * np.sin(2 * np.pi * 1.3 * TIMES)], axis=1)
+    verdict = judge(crops(whip), TIMES, MotionConfig())
+    assert verdict.reason == "shake", verdict.scores
+    assert verdict.scores["jitter_amplitude"] > 5  # percent of the long side
+
+
+def test_shake_does_not_depend_on_the_frame_rate():
+    # The same tremor seen at 30 fps and with two frames in three left out (as a decoder that
+    # skips unreferenced frames hands them over) measures about the same.
+    rng = np.random.default_rng(8)
+    path = np.stack([4 * np.sin(2 * np.pi * 0.4 * TIMES), np.zeros(T)], axis=1) + rng.normal(0, 1.0, (T, 2))
+    frames = crops(path)
+    full = judge(frames, TIMES, MotionConfig()).scores["shake"]
+    thinned = judge(frames[::3], TIMES[::3], MotionConfig()).scores["shake"]
+    assert thinned == pytest.approx(full, rel=0.5)
+
+
+SHARED = Path(__file__).resolve().parents[3].parent / "shared" / "data"
+
+
+@pytest.mark.skipif(not (SHARED / "videos-dev" / "labels.json").is_file(), reason="../shared/data is absent")
+@pytest.mark.parametrize("name, shaky", [("videos-dev/hikers.mp4", False), ("videos-dev/pancake.mkv", False),
+                                         ("videos-dev/group_vp8.webm", False), ("videos-dev/armwrestle.mp4", True),
+                                         ("videos/fire2.mp4", True)])
+def test_real_handheld_footage(name, shaky):
+    from tasks.curate.decode import analysis_frames
+
+    decoded = list(analysis_frames(SHARED / name))
+    frames = np.stack([f.image for f in decoded])
+    times = np.array([f.time for f in decoded])
+    verdict = judge(frames, times, MotionConfig())
+    assert (verdict.reason == "shake") == shaky, verdict.scores
