@@ -138,8 +138,9 @@ def main() -> None:
         for name, (b, n) in found.items():
             print(f"  false boxes {name:28s} {b:3d} in {n:3d} frames")
         print(f"  false boxes per 100 frames on face-free footage: {100 * boxes / frames:.1f} ({boxes} in {frames})")
-        print(f"  cost: {cost_ms(config):.0f} ms per 1280x720 frame on one core "
-              f"({cost_ms(config) / config.detect_every:.0f} ms per frame at detect_every={config.detect_every}, "
+        ms = cost_ms(config)
+        print(f"  cost: {ms:.0f} ms per 1280x720 frame on one core "
+              f"({ms / config.detect_every:.0f} ms per frame at detect_every={config.detect_every}, "
               "hiding not counted)")
 
 
