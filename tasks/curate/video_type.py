@@ -72,6 +72,10 @@ class VideoTypeConfig(FilterConfig):
     # Drawn and (nearly) never changing from one frame to the next: slides. On the tuning seeds
     # every deck measured 0 and the slowest cartoon 0.007.
     slides_change: float = 0.002
+    # ... or each picture stays on screen this long (s, the median time from a sampled frame to
+    # the next): a variable-frame-rate deck stores one frame per page, so every stored frame
+    # differs from the next, yet each is held for seconds; animation runs at 8 or more a second.
+    slides_hold_s: float = 0.4
     # A page held on screen: mostly flat fills, nothing changing between samples, and a palette
     # that anti-aliased text on a coloured ground widens past drawn_colours but that stays far
     # below footage's (a frozen camera shot keeps its shading: dozens of colours, little flat).
@@ -197,7 +201,7 @@ def classify(scores: dict[str, float], config: VideoTypeConfig) -> str:
             and scores["axis_edges"] >= config.steps_axis))
     if pattern:
         return "test_pattern"
-    held = scores["change"] <= config.slides_change
+    held = scores["change"] <= config.slides_change or scores.get("hold_s", 0.0) >= config.slides_hold_s
     page = held and ((scores["colours"] <= config.page_colours and scores["flat"] >= config.page_flat
                       and scores["crisp"] >= config.page_crisp)
                      or (scores["colours"] <= config.deck_colours and scores["flat"] >= config.deck_flat
@@ -205,7 +209,7 @@ def classify(scores: dict[str, float], config: VideoTypeConfig) -> str:
     cartoon = (scores["colours"] <= config.cartoon_colours and scores["flat"] >= config.cartoon_flat
                and scores["crisp"] >= config.cartoon_crisp)
     if scores["colours"] <= config.drawn_colours or page or cartoon:
-        return "slides" if scores["change"] <= config.slides_change else "animation"
+        return "slides" if held else "animation"
     if (scores["axis_edges"] >= config.screen_axis and scores["lines"] >= config.screen_lines
             and scores["still"] >= config.screen_still):
         return "screen"
@@ -232,6 +236,7 @@ def judge(frames: np.ndarray, times: np.ndarray, config: VideoTypeConfig) -> Ver
     scores = dict(zip(("flat", "colours", "axis_edges", "lines", "saturated", "crisp"), map(float, np.median(features, axis=0))))
     scores["still"] = still
     scores["change"] = change
+    scores["hold_s"] = float(np.median(np.diff(times)[index[steps]])) if steps.any() else 0.0
     scores["edge_kurtosis"] = float(np.median([edge_kurtosis(f) for f in picked]))
     kind = classify(scores, config)
     scores["rendered"] = rendered_probability(scores)

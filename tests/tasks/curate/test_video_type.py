@@ -267,3 +267,12 @@ def test_real_cgi_scores_above_real_camera_footage():
         frames = np.stack([f.image for f in itertools.islice(analysis_frames(folder / name), 60)])
         p[name] = judge(frames, np.arange(len(frames)) / 24.0, VideoTypeConfig()).scores["type_rendered"]
     assert p["caminandes.mp4"] > 0.5 > max(p["tos.mp4"], p["hikers.mp4"]), p
+
+
+def test_a_variable_frame_rate_deck_with_one_frame_per_page_is_slides():
+    # As slides.avi stores it: one frame per page, each shown for about a second, so every
+    # stored frame differs from the next; a cartoon with the same frames at 30 fps is animation.
+    pages = slides()[[0, 20, 40, 59]]
+    assert judge(pages, np.array([0.0, 1.1, 2.2, 3.3]), VideoTypeConfig()).reason == "non_physical:slides"
+    cartoon = animation()
+    assert judge(cartoon, TIMES, VideoTypeConfig()).reason == "non_physical:animation"
