@@ -39,3 +39,11 @@ def test_fast_decode_loses_no_cut_of_a_fast_cut_cgi_clip():
     assert set(full) <= set(fast)
     assert {58, 176, 209} <= set(fast)
     assert all(any(abs(c - t) <= 2 for t in truth) for c in fast)  # no false cut
+
+
+@pytest.mark.parametrize("name", ["basketball.mp4", "makeup_webcam.avi"])
+def test_handheld_and_webcam_motion_is_no_dissolve(name):
+    # Shake, head turns and exposure drift fit a blend on blurred thumbnails; both files are
+    # one shot, and local motion of one end explains their middle frames as well as a blend.
+    spans = detect_scenes(DEV / name, include_rejected=True)
+    assert [s for s in spans if s.kind == "transition"] == []
