@@ -18,6 +18,12 @@ neither dark picture nor flat texture):
 - ``noise``: sensor-noise sigma (grey levels) from consecutive frames aligned by phase
   correlation (``temporal_noise``): noise changes every frame, texture does not, so fine
   texture is not mistaken for noise the way a single-frame estimate would.
+- ``frozen_s``: the longest run of identical consecutive frames (mean grey change below
+  ``frozen_change``), in seconds, and ``frozen_motion``: the median grey change per frame
+  everywhere else. A moving picture that stands exactly still for half a second and more has
+  frozen (a decoder holding a broken frame, a stalled capture): real footage whose camera or
+  scene moves that much between frames never repeats itself exactly, while a fixed camera on
+  a quiet scene (a few grey levels per frame) may.
 """
 
 from __future__ import annotations
@@ -59,6 +65,14 @@ class QualityConfig(FilterConfig):
     underexposed_p99: float = 64.0  # 99th luma percentile at or below: "underexposed"
     n_noise_pairs: int = 6
     noise_max: float = 3.5  # noise sigma (grey levels at analysis size) above: "noise"
+    frozen_change: float = 0.5  # mean |grey change| below which two consecutive frames are identical
+    frozen_min_s: float = 0.5  # identical frames for this long ...
+    # ... in a picture that otherwise changes this much per frame: "frozen". On the real videos
+    # in ../shared/data, the files that repeat frames for 0.5 s or more are fixed cameras on
+    # quiet scenes and renders (0.7-3.4 grey levels per frame elsewhere; runs up to 1.8 s) and
+    # armwrestle.mp4's decoder freeze (15-22); 7 is about their geometric midpoint. Handheld
+    # footage measured 5.7-25 and never repeated a frame for long.
+    frozen_motion: float = 7.0
 
 
 IMMERKAER = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)
@@ -123,6 +137,23 @@ def temporal_noise(a: np.ndarray, b: np.ndarray, quantile: float = 25.0) -> floa
     return float(np.sqrt(np.pi / 2) / (6.0 * np.sqrt(2.0)) * np.percentile(blocks[usable], quantile))
 
 
+def frozen_run(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> tuple[float, float]:
+    """(longest run of identical consecutive frames in s, median grey change per frame outside
+    such runs) of T x h x w x 3 uint8 RGB frames at times T seconds."""
+    greys = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
+    change = np.array([cv2.absdiff(a, b).mean() for a, b in zip(greys[:-1], greys[1:])])
+    same = change < config.frozen_change
+    longest, start = 0.0, None
+    for k, s in enumerate(same):
+        if s:
+            start = k if start is None else start
+            longest = max(longest, float(times[k + 1] - times[start]))
+        else:
+            start = None
+    moving = change[~same]
+    return longest, float(np.median(moving)) if moving.size else 0.0
+
+
 def judge(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> Verdict:
     """Judge the picture quality of one scene: frames T x h x w x 3 uint8 RGB, times T seconds."""
     if not config.enabled:
@@ -163,6 +194,7 @@ def judge(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> Verdi
         "palette": float(np.median([palette_size(f) for f in picked[:: max(1, len(picked) // 3)]])),
         "luma_change": moving,
     }
+    scores["frozen_s"], scores["frozen_motion"] = frozen_run(frames, times, config)
     # A drawn page (slides, cartoons, bars) has a chosen palette, not an exposure: a white
     # slide is not an overexposed shot. Only footage with a real palette is judged for it.
     # Drawn is the video-type filter's call (its default rules, a few samples), so a white
@@ -182,6 +214,10 @@ def judge(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> Verdi
         reason = "overexposed"
     elif scores["luma_p99"] <= config.underexposed_p99 and footage():
         reason = "underexposed"
+    elif (scores["frozen_s"] >= config.frozen_min_s and scores["frozen_motion"] >= config.frozen_motion
+          and scores["palette"] > config.drawn_palette and not looks_drawn(frames, times)):
+        # A held slide between page turns is the video-type filter's call, not a freeze.
+        reason = "frozen"
     elif scores["noise"] > config.noise_max:
         reason = "noise"
     elif valid and scores["sharpness"] < config.sharpness_min:

@@ -160,3 +160,36 @@ def test_the_video_type_pass_is_asked_only_when_exposure_would_reject(monkeypatc
     assert judge(scene(), TIMES, QualityConfig()).keep and not asked  # normal exposure: never asked
     dark = (scene() * 0.2).astype(np.uint8)
     assert judge(dark, TIMES, QualityConfig()).reason == "underexposed" and len(asked) == 1
+
+
+def test_a_moving_picture_that_stops_dead_is_frozen_but_a_quiet_fixed_shot_or_repeated_frames_are_not():
+    moving = scene(speed=3.0)
+    frozen = moving.copy()
+    frozen[25:45] = frozen[25]  # the decoder holds one frame for 2/3 s
+    verdict = judge(frozen, TIMES, QualityConfig())
+    assert verdict.reason == "frozen", verdict.scores
+    assert verdict.scores["frozen_s"] == pytest.approx(19 / FPS)  # from frame 25 to frame 44
+    # Every 7th frame repeated (as some encoders do): never long enough.
+    repeated = moving.copy()
+    repeated[7::7] = repeated[6:-1:7]
+    assert judge(repeated, TIMES, QualityConfig()).keep
+    # A fixed camera on a quiet scene repeats frames exactly for a second, then a little moves.
+    quiet = np.repeat(scene()[:1], T, axis=0)
+    for t in range(30, T):
+        cv2.circle(quiet[t], (40 + t, 60), 6, (240, 240, 240), -1)
+    verdict = judge(quiet, TIMES, QualityConfig())
+    assert verdict.keep and verdict.scores["frozen_s"] >= 0.9, verdict.scores
+
+
+def test_real_decoder_freeze_is_found():
+    from tasks.curate.decode import analysis_frames
+    from tests.support import SHARED_DATA
+
+    path = SHARED_DATA / "videos-dev" / "armwrestle.mp4"
+    if not path.is_file():
+        pytest.skip("../shared/data is absent")
+    decoded = [f for f in analysis_frames(path) if 200 <= f.index < 280]
+    frames, times = np.stack([f.image for f in decoded]), np.array([f.time for f in decoded])
+    assert judge(frames, times, QualityConfig()).reason == "frozen"  # frames 231-267 repeat one smear
+    hikers = [f for f in analysis_frames(SHARED_DATA / "videos-dev" / "hikers.mp4")]
+    assert judge(np.stack([f.image for f in hikers]), np.array([f.time for f in hikers]), QualityConfig()).keep
