@@ -3,14 +3,13 @@ known offset, so the true camera motion is exact)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import cv2
 import numpy as np
 import pytest
 
 from tasks.curate.filters import grey
 from tasks.curate.motion import MotionConfig, judge, zoom_rate
+from tests.support import SHARED_DATA as SHARED
 
 H, W, FPS, T = 144, 256, 30.0, 90
 
@@ -161,9 +160,6 @@ def test_shake_does_not_depend_on_the_frame_rate():
     full = judge(frames, TIMES, MotionConfig()).scores["shake"]
     thinned = judge(frames[::3], TIMES[::3], MotionConfig()).scores["shake"]
     assert thinned == pytest.approx(full, rel=0.5)
-
-
-SHARED = Path(__file__).resolve().parents[3].parent / "shared" / "data"
 
 
 @pytest.mark.skipif(not (SHARED / "videos-dev" / "labels.json").is_file(), reason="../shared/data is absent")
