@@ -13,8 +13,16 @@ screen and how it persists:
    256 px wide, where a caption's glyphs are 4 to 8 px tall; the detector needs about twice
    that) and its text boxes are kept when they look like a line of text: wider than
    ``line_aspect`` times their height, no taller than ``line_max_height`` of the picture.
-   The middle sample is searched first, the other ``n_samples - 1`` only when it holds text.
-3. **Persistence**: a box counts when a box at the same screen position (same row, and the
+   The middle sample is searched first, the other ``n_samples - 1`` only when it holds text,
+   and then only in the rows around the boxes found so far (three text heights of context
+   above and below: a box elsewhere could not persist); the search stops as soon as the
+   samples seen make the verdict (two that agree, under the default 2-of-3 persistence).
+3. **Text-filled scenes**: an overlay is a few lines (a caption of one to three, a clock, a
+   logo); a bookshelf, a shop front or a notice board shows many short words scattered over
+   the picture. Boxes in one row closer than ``word_gap`` text heights are one line; a sample
+   whose bands hold more than ``max_lines`` lines is taken for a text-filled scene, and there
+   only lines ``long_line`` times as wide as tall (a caption, not a spine title) stay.
+4. **Persistence**: a box counts when a box at the same screen position (same row, and the
    same left end, right end or centre, within ``same_place`` text heights) is found on at
    least ``persist`` of the samples. Scene text (a sign, a book spine, a T-shirt) moves with
    the camera or with whoever wears it and leaves its place; a caption stays, even while its
@@ -54,6 +62,11 @@ class OverlayTextConfig(FilterConfig):
     box_score: float = 0.6  # detector: mean probability of a kept box (PP-OCR: 0.5)
     line_aspect: float = 1.5  # width / height of a text line
     line_max_height: float = 0.15  # of the picture height
+    # A sample whose bands hold more than max_lines separate text lines shows a text-filled
+    # scene (a bookshelf, a shop front): there only lines long_line x their height count.
+    max_lines: int = 3
+    long_line: float = 5.0
+    word_gap: float = 1.5  # boxes in one row closer than this x their height are one line
     same_place: float = 0.6  # edge or centre tolerance, in text heights, of one box on two frames
     persist: float = 0.6  # of the searched samples
     # The overlay zones (fractions of the height): only there is text looked for.
@@ -116,11 +129,47 @@ def same_place(a: tuple[float, float, float, float], b: tuple[float, float, floa
             or (not (cut_left or cut_right) and abs(a[0] + a[2] / 2 - b[0] - b[2] / 2) <= tol))
 
 
+def text_lines(boxes: list[tuple[float, float, float, float]], word_gap: float) -> int:
+    """How many separate text lines the (x, y, w, h) boxes form: boxes in one row (centres
+    within half the taller height, heights within a factor of 2) whose horizontal gap is under
+    ``word_gap`` x the taller height are words of one line."""
+    parent = list(range(len(boxes)))
+
+    def root(i: int) -> int:
+        while parent[i] != i:
+            i = parent[i]
+        return i
+
+    for i, a in enumerate(boxes):
+        for j in range(i):
+            b = boxes[j]
+            tall = max(a[3], b[3])
+            gap = max(a[0], b[0]) - min(a[0] + a[2], b[0] + b[2])
+            if (abs(a[1] + a[3] / 2 - b[1] - b[3] / 2) <= tall / 2 and tall <= 2 * min(a[3], b[3])
+                    and gap <= word_gap * tall):
+                parent[root(i)] = root(j)
+    return len({root(i) for i in range(len(boxes))})
+
+
+def overlay_candidates(boxes: list[tuple[float, float, float, float]], height: int,
+                       config: OverlayTextConfig) -> list[tuple[float, float, float, float]]:
+    """The boxes of one sample that may be burned in: those in the overlay bands; when the
+    bands hold more than ``max_lines`` separate lines the scene itself is full of text (book
+    spines, shop signs, a notice board: many short words scattered over the picture, where an
+    overlay is a caption of one to three lines, a clock, a logo), and of those only lines at
+    least ``long_line`` times as wide as tall (a caption) stay."""
+    boxes = [b for b in boxes if in_zone(b, height, config)]
+    if text_lines(boxes, config.word_gap) > config.max_lines:
+        boxes = [b for b in boxes if b[2] >= config.long_line * b[3]]
+    return boxes
+
+
 def persistent(found: list[list[tuple[float, float, float, float]]], config: OverlayTextConfig,
-               width: float = math.inf) -> list:
+               width: float = math.inf, samples: int | None = None) -> list:
     """Boxes of ``found`` (one list per searched sample) with a box at the same place on at
-    least ``persist`` of the samples (their own included, and never fewer than two)."""
-    need = max(2, math.ceil(config.persist * len(found)))
+    least ``persist`` of ``samples`` samples (default: those in ``found``; their own included,
+    and never fewer than two)."""
+    need = max(2, math.ceil(config.persist * (samples or len(found))))
     out = []
     for i, boxes in enumerate(found):
         for box in boxes:
@@ -129,6 +178,26 @@ def persistent(found: list[list[tuple[float, float, float, float]]], config: Ove
             if seen >= need:
                 out.append(box)
     return out
+
+
+def rows_around(boxes: list[tuple[float, float, float, float]], height: int) -> list[tuple[int, int]]:
+    """Row ranges covering each (x, y, w, h) box with three text heights above and below, merged."""
+    spans = sorted((max(0, math.floor(y - 3 * bh)), min(height, math.ceil(y + 4 * bh))) for _, y, _, bh in boxes)
+    out: list[tuple[int, int]] = []
+    for top, bottom in spans:
+        if out and top <= out[-1][1]:
+            out[-1] = (out[-1][0], max(out[-1][1], bottom))
+        else:
+            out.append((top, bottom))
+    return out
+
+
+def box_area(boxes: list[tuple[float, float, float, float]], height: int, width: int) -> float:
+    """Fraction of an height x width picture the (x, y, w, h) boxes cover."""
+    mask = np.zeros((height, width), bool)
+    for x, y, bw, bh in boxes:
+        mask[int(y):int(math.ceil(y + bh)), int(x):int(math.ceil(x + bw))] = True
+    return float(mask.mean())
 
 
 def judge(frames: np.ndarray, times: np.ndarray, config: OverlayTextConfig) -> Verdict:
@@ -142,19 +211,22 @@ def judge(frames: np.ndarray, times: np.ndarray, config: OverlayTextConfig) -> V
     if config.search == "frame" or rows[0][1] >= rows[1][0]:
         rows = [(0, h)]
     picks = sample_indices(t, config.n_samples)
-    # The middle sample first: the others are searched only when it shows text.
+    # The middle sample first: the others are searched only when it shows text, and only in the
+    # rows where the samples before found some (a box elsewhere could not persist); the search
+    # stops as soon as the samples seen already make the verdict.
     order = sorted(picks.tolist(), key=lambda i: abs(i - (t - 1) / 2))
-    found = []
+    found: list[list] = []
+    overlay: list = []
+    search = rows
     for i in order:
-        found.append(detect_in_strips(frames[i], rows, config))
-        if not any(in_zone(b, h, config) for b in found[0]):
+        found.append(overlay_candidates(detect_in_strips(frames[i], search, config), h, config))
+        if not found[0]:
             break
-    overlay = persistent(found, config, w) if len(found) > 1 else []
-    overlay = [b for b in overlay if in_zone(b, h, config)]
-    mask = np.zeros((h, w), bool)
-    for x, y, bw, bh in overlay:
-        mask[int(y):int(math.ceil(y + bh)), int(x):int(math.ceil(x + bw))] = True
-    text_area = float(mask.mean())
+        overlay = persistent(found, config, w, len(order)) if len(found) > 1 else []
+        if box_area(overlay, h, w) >= config.text_area_min:
+            break
+        search = rows_around([b for boxes in found for b in boxes], h)
+    text_area = box_area(overlay, h, w)
     scores = {"text_area": text_area, "text_boxes": float(len(overlay)), "text_samples": float(len(found))}
     has_text = text_area >= config.text_area_min
     if has_text and config.skip_drawn:
