@@ -7,7 +7,11 @@ Gradual transitions are found on per-frame statistics (mean luma, gradient energ
 blurred 64-px grey thumbnail):
 
 - a fade through black is a luma valley near black with monotone ramps either side
-  (ThresholdDetector would give one cut mid-fade; the ramps are what must be excluded);
+  (ThresholdDetector would give one cut mid-fade; the ramps are what must be excluded).
+  A side that leaves black in one step of at least ``FADE_JUMP`` of its rise (a linear ramp
+  of r frames climbs 1 / (r + 1) per step) is a hard cut into or out of black, not a ramp:
+  a cut to black then a fade in is a cut, a too-short black span and a fade of the ramp
+  frames; a fade out then a cut out of black is a fade, the black span and a cut;
 - a dissolve is a span whose frames are well explained as blends (1-w) P + w Q of the
   frames P and Q either side, with w rising steadily. Candidates come from a dip of the
   gradient energy (a blend of unrelated shots is half as sharp mid-way) or from a peak of
@@ -63,6 +67,7 @@ MAX_FILL = 2  # undecoded frames in a row that get interpolated rows (see SceneS
 MAX_REFILL = 16  # longest run of frames decoded on demand: H.264 allows at most 16 B-frames in a row
 THUMB_BLUR = 2.0  # px of Gaussian blur on thumbnails: camera motion must not read as new content
 Span = tuple[int, int, str]  # (start, end exclusive, kind) in frame positions
+FADE_JUMP = 0.6  # share of a fade side's luma rise taken in one step that makes the side a hard cut
 
 
 class SceneConfig(BaseModel):
@@ -171,7 +176,25 @@ def _fades(luma: np.ndarray, h: int, max_len: int, config: SceneConfig, ended: b
         ramps = b - a - 1 - int(np.sum(luma[a + 1: b] <= floor))
         if ramps < 2 or max(luma[a], luma[b]) < luma[v] + config.fade_depth:
             continue  # a dark shot between hard cuts, not a fade
-        found.append((a + 1, b + 1 if b == n - 1 and out(b - 1, b) else b, "fade"))
+        end = b + 1 if b == n - 1 and out(b - 1, b) else b
+        # A side reached in one step of most of its rise is a hard cut into or out of black,
+        # not a ramp (a linear ramp of r frames climbs 1 / (r + 1) of the rise per step).
+        cut_in = a < v and luma[a] - luma[a + 1] >= FADE_JUMP * (luma[a] - luma[v])
+        cut_out = end == b and b > v and luma[b] - luma[b - 1] >= FADE_JUMP * (luma[b] - luma[v])
+        if cut_in and cut_out:
+            continue
+        if cut_in:  # the cut at the first black frame; the fade starts where luma leaves black
+            start = a + 1
+            while start < end and luma[start] <= floor:
+                start += 1
+            found += [(a + 1, a + 1, "cut"), (start, end, "fade")]
+        elif cut_out:  # the fade ends at the first black frame; the cut at the new shot's first
+            stop = b - 1
+            while stop > a + 1 and luma[stop - 1] <= floor:
+                stop -= 1
+            found += [(a + 1, stop, "fade"), (b, b, "cut")]
+        else:
+            found.append((a + 1, end, "fade"))
     return found
 
 
@@ -308,7 +331,8 @@ def _dissolves(sharp: np.ndarray, thumbs: np.ndarray, h: int, max_len: int, conf
 def find_transitions(luma: np.ndarray, sharp: np.ndarray, thumbs: np.ndarray, max_len: int,
                      config: SceneConfig, ended: bool = False, cache: dict | None = None,
                      offset: int = 0, change: np.ndarray | None = None) -> list[Span]:
-    """Gradual transitions in N frames, as sorted, disjoint (start, end exclusive, kind).
+    """Gradual transitions in N frames, as sorted, disjoint (start, end exclusive, kind), and
+    (c, c, "cut") for a hard cut into or out of black that borders a fade.
 
     luma: N mean luma (0..255); sharp: N mean squared grey gradient; thumbs: N x th x tw
     float32 blurred grey thumbnails. Unless the video has ``ended``, candidates that later
@@ -323,14 +347,15 @@ def find_transitions(luma: np.ndarray, sharp: np.ndarray, thumbs: np.ndarray, ma
                            change)
     # A fade is also a blend (with black); its luma ramps bound it better than a blend fit.
     found = sorted(fades + [d for d in dissolves if not any(d[0] < b and a < d[1] for a, b, _ in fades)])
+    cuts = [span for span in found if span[2] == "cut"]
     merged: list[Span] = []
-    for a, b, kind in found:
+    for a, b, kind in (span for span in found if span[2] != "cut"):
         if merged and a <= merged[-1][1]:
             pa, pb, pkind = merged[-1]
             merged[-1] = (pa, max(pb, b), "fade" if "fade" in (kind, pkind) else kind)
         else:
             merged.append((a, b, kind))
-    return merged
+    return sorted(merged + [c for c in cuts if not any(a < c[0] < b for a, b, _ in merged)])
 
 
 def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray]:

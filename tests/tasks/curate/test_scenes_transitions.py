@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import cv2
+import pytest
 import numpy as np
 
 from tasks.curate.decode import AnalysisFrame
 from tasks.curate.scenes import split_scenes
 
-from .test_scenes import FPS, H, W, plane
+from .test_scenes import FPS, H, W, plane, shot
 
 
 def spans_of(frames):
@@ -47,3 +48,30 @@ def test_a_dissolve_between_views_of_one_place_is_still_a_dissolve():
     found = spans_of(a + mix + b)
     # (Still shots either side read as blends with weight 0 or 1, so the span may reach into them.)
     assert len(found) == 1 and found[0][2] == "dissolve" and found[0][0] <= 70 and found[0][1] >= 82
+
+
+def black_join(hold: int, ramp: int, cut_first: bool):
+    """70 frames of one shot, then either a hard cut to ``hold`` black frames and a fade in
+    over ``ramp`` frames (``cut_first``), or a fade out over ``ramp`` frames, ``hold`` black
+    frames and a hard cut; then 70 frames of another shot."""
+    a, b = shot(1, 0.9), shot(2, 1.2)
+    black = np.zeros((H, W, 3), np.float32)
+    frames = [next(a) for _ in range(70)]
+    if cut_first:
+        frames += [black] * hold + [next(b) * ((j + 1) / (ramp + 1)) for j in range(ramp)]
+    else:
+        frames += [next(a) * (1 - (j + 1) / (ramp + 1)) for j in range(ramp)] + [black] * hold
+    frames += [next(b) for _ in range(70)]
+    return [np.clip(f, 0, 255).astype(np.uint8) for f in frames]
+
+
+@pytest.mark.parametrize("hold", [1, 4])
+def test_a_hard_cut_to_black_then_a_fade_in_is_a_cut_and_a_fade(hold):
+    # The black frames after the cut are a too-short span; the fade is the ramp up only.
+    assert spans_of(black_join(hold, 8, cut_first=True)) == [(70, 70 + hold, "cut"), (70 + hold, 78 + hold, "fade")]
+
+
+@pytest.mark.parametrize("hold", [1, 4])
+def test_a_fade_out_then_a_hard_cut_out_of_black_is_a_fade_and_a_cut(hold):
+    spans = spans_of(black_join(hold, 8, cut_first=False))
+    assert spans == [(70, 78, "fade"), (78 + hold, 148 + hold, "cut")]
