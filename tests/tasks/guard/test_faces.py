@@ -98,11 +98,34 @@ def test_detect_every_carries_the_union_of_neighbouring_detections(monkeypatch):
         by_frame.setdefault(d.frame, set()).add((d.box, d.detected))
     assert by_frame[0] == {((10, 10, 8, 8), True)}
     assert by_frame[1] == by_frame[2] == {((10, 10, 8, 8), False), ((50, 10, 8, 8), False)}
-    assert by_frame[3] == {((50, 10, 8, 8), True)}
-    assert by_frame[4] == by_frame[5] == {((50, 10, 8, 8), False)}
-    assert 6 not in by_frame and 7 not in by_frame
-    assert np.array_equal(out[6:], frames[6:])
+    # Each face missed by the next detection is held one more interval (it never moved: no growth).
+    assert by_frame[3] == {((50, 10, 8, 8), True), ((10, 10, 8, 8), False)}
+    assert by_frame[4] == by_frame[5] == {((50, 10, 8, 8), False), ((10, 10, 8, 8), False)}
+    assert by_frame[6] == {((50, 10, 8, 8), False)}  # the face at x=10, missed twice, is dropped
+    assert 7 not in by_frame  # and so is the one at x=50
+    assert np.array_equal(out[7:], frames[7:])
     assert _outside_unchanged(frames, out, decisions)
+
+
+def test_a_face_the_detector_loses_is_held_one_interval_grown_by_its_motion(monkeypatch):
+    """The face moves 4 px a frame to the right, found on frames 0 and 5, missed on 10 (turned
+    away, motion-blurred), found nowhere after: frames 10-14 keep its frame-5 box grown by
+    4 px x frames since frame 5 each way, so it is covered whether it went on or stopped;
+    frame 15, missed again, has none. A box never found is never held."""
+    frames = np.zeros((16, 60, 200, 3), np.uint8)
+    frames[:, :, :, 1] = np.arange(200, dtype=np.uint8)
+    frames[:, 0, 0, 0] = np.arange(16)
+    _fake_detector(monkeypatch, {0: [(20, 10, 30, 30)], 5: [(40, 10, 30, 30)]})
+    _, decisions = guard_frames(frames, GuardConfig(detect_every=5, pad=0))
+    by_frame = {}
+    for d in decisions:
+        by_frame.setdefault(d.frame, set()).add((d.box, d.detected))
+    assert by_frame[5] == {((40, 10, 30, 30), True)}
+    assert by_frame[7] == {((40, 10, 30, 30), False)}  # carried from frame 5 (nothing found on 10)
+    for j in range(10, 15):
+        grow = 4 * (j - 5)
+        assert by_frame[j] == {((40 - grow, 10, 30 + 2 * grow, 30), False)}, j
+    assert 15 not in by_frame
 
 
 def test_guard_off_and_bad_input(monkeypatch):
