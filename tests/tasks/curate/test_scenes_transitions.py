@@ -75,3 +75,18 @@ def test_a_hard_cut_to_black_then_a_fade_in_is_a_cut_and_a_fade(hold):
 def test_a_fade_out_then_a_hard_cut_out_of_black_is_a_fade_and_a_cut(hold):
     spans = spans_of(black_join(hold, 8, cut_first=False))
     assert spans == [(70, 78, "fade"), (78 + hold, 148 + hold, "cut")]
+
+
+def test_something_passing_right_in_front_of_the_lens_is_not_a_cut():
+    # Three frames of an unrelated, closer object covering the whole picture, then the same
+    # pan again: the view left and came back, so the shot goes on.
+    frames = [f for f, _ in zip(shot(1, 0.9), range(120))]
+    cover = plane(7)[:H, :W]
+    for k in range(60, 63):
+        frames[k] = cover
+    frames = [np.clip(f, 0, 255).astype(np.uint8) for f in frames]
+    assert spans_of(frames) == []
+    # A new shot instead of the old view after the same three frames is a cut.
+    other = [f for f, _ in zip(shot(2, 1.2), range(57))]
+    changed = frames[:63] + [np.clip(f, 0, 255).astype(np.uint8) for f in other]
+    assert [s[0] for s in spans_of(changed)] == [60]
