@@ -5,7 +5,9 @@ clean; with a two-line burned-in caption; a locked-off street with a running clo
 clean pan cut into four shots, since the filter's work is per scene), then times
 ``analyse_video`` with the filter on and off, alternating, ``--repeats`` times each, and prints
 the medians side by side with the filter's own time inside the pass (``judge`` timed). Issue 27
-target: the filter's cost at most 15 % of the analysis pass.
+target: the filter's cost at most 15 % of the analysis pass. On a shared, loaded machine wall
+times swing by 2x between runs; the process CPU time of the filter over that of the pass
+("cpu share") is steadier, and the target is judged on it.
 
     .venv/bin/python bench/overlay_text_cost.py            # options: --repeats 5 --seconds 10
 """
@@ -83,42 +85,46 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--seconds", type=float, default=10.0)
     args = ap.parse_args()
-    spent = [0.0]
+    spent = [0.0, 0.0]
     real_judge = overlay_text.judge
 
     def timed_judge(*a, **k):
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             return real_judge(*a, **k)
         finally:
             spent[0] += time.perf_counter() - t0
+            spent[1] += time.process_time() - c0
 
     overlay_text.judge = timed_judge  # run_filters looks the judge up on the module each call
     on, off = CurateConfig(), CurateConfig(overlay_text=OverlayTextConfig(enabled=False))
     print(f"{W}x{H} {FPS} fps, {args.seconds:g} s per clip, median of {args.repeats} alternating runs; "
-          "cost = (on - off) / off; share = the filter's own time / the pass with it on")
-    print(f"{'clip':10s} {'scenes':>6s} {'off s':>7s} {'on s':>7s} {'cost':>7s} {'judge s':>8s} {'share':>7s}  verdicts")
+          "cost = (on - off) / off; share = the filter's own time / the pass with it on (wall; cpu: process time)")
+    print(f"{'clip':10s} {'scenes':>6s} {'off s':>7s} {'on s':>7s} {'cost':>7s} {'judge s':>8s} {'share':>7s} "
+          f"{'cpu share':>9s}  verdicts")
     worst = 0.0
     with tempfile.TemporaryDirectory(prefix="wl-overlay-cost-") as tmp:
         for kind in ("clean", "caption", "locked", "cuts"):
             path = write(Path(tmp) / f"{kind}.mp4", kind, args.seconds)
             analyse_video(path, "0" * 64, on)  # warm up: the detector session, caches
-            t_on, t_off, judged = [], [], []
+            t_on, t_off, judged, cpu_shares = [], [], [], []
             for _ in range(args.repeats):
                 for config, times in ((off, t_off), (on, t_on)):
-                    spent[0] = 0.0
-                    t0 = time.perf_counter()
+                    spent[0] = spent[1] = 0.0
+                    t0, c0 = time.perf_counter(), time.process_time()
                     result = analyse_video(path, "0" * 64, config)
                     times.append(time.perf_counter() - t0)
                     if config is on:
                         judged.append(spent[0])
+                        cpu_shares.append(spent[1] / (time.process_time() - c0))
             m_on, m_off, m_judge = statistics.median(t_on), statistics.median(t_off), statistics.median(judged)
             cost = (m_on - m_off) / m_off
-            worst = max(worst, m_judge / m_on)
+            cpu_share = statistics.median(cpu_shares)
+            worst = max(worst, cpu_share)
             verdicts = ",".join(c.reject_reason or ("text" if "overlay:text" in c.tags else "keep") for c in result.clips)
             print(f"{kind:10s} {len(result.clips):6d} {m_off:7.3f} {m_on:7.3f} {cost:7.1%} {m_judge:8.3f} "
-                  f"{m_judge / m_on:7.1%}  {verdicts}")
-    print(f"worst share {worst:.1%} (target <= 15%)")
+                  f"{m_judge / m_on:7.1%} {cpu_share:9.1%}  {verdicts}")
+    print(f"worst cpu share {worst:.1%} (target <= 15%)")
     return 0
 
 

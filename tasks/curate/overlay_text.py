@@ -58,6 +58,7 @@ class OverlayTextConfig(FilterConfig):
     action: Literal["reject", "tag"] = "reject"
     n_samples: int = 3  # frames the detector may see, spread over the scene
     detect_scale: float = 2.0  # strips are upscaled this much for the detector
+    closer_scale: float = 3.0  # text seen that made no verdict is searched again at this scale (0: never)
     threshold: float = 0.3  # detector: text probability of a text pixel (PP-OCR's default)
     box_score: float = 0.6  # detector: mean probability of a kept box (PP-OCR: 0.5)
     line_aspect: float = 1.5  # width / height of a text line
@@ -80,21 +81,22 @@ class OverlayTextConfig(FilterConfig):
     skip_drawn: bool = True  # leave text on slides and test patterns to the video-type filter
 
 
-def detect_in_strips(frame: np.ndarray, rows: list[tuple[int, int]],
-                     config: OverlayTextConfig) -> list[tuple[float, float, float, float]]:
+def detect_in_strips(frame: np.ndarray, rows: list[tuple[int, int]], config: OverlayTextConfig,
+                     scale: float | None = None) -> list[tuple[float, float, float, float]]:
     """(x, y, w, h) text-line boxes in an h x w x 3 uint8 RGB frame, searched in the row
-    ranges ``rows`` only, in frame coordinates."""
+    ranges ``rows`` only (upscaled ``scale``, default ``detect_scale``), in frame coordinates."""
     h, w = frame.shape[:2]
+    scale = scale or config.detect_scale
     out = []
     for top, bottom in rows:
         # Strip heights at least 32 input px and a whole number of 32 px after scaling.
-        need = max(32, math.ceil((bottom - top) * config.detect_scale / 32) * 32)
-        grow = need / config.detect_scale - (bottom - top)
+        need = max(32, math.ceil((bottom - top) * scale / 32) * 32)
+        grow = need / scale - (bottom - top)
         top = max(0, int(top - grow / 2))
-        bottom = min(h, top + math.ceil(need / config.detect_scale))
-        top = max(0, bottom - math.ceil(need / config.detect_scale))
+        bottom = min(h, top + math.ceil(need / scale))
+        top = max(0, bottom - math.ceil(need / scale))
         strip = frame[top:bottom]
-        probs = text_detector.probability(strip[None], int(round(max(strip.shape[:2]) * config.detect_scale)))
+        probs = text_detector.probability(strip[None], int(round(max(strip.shape[:2]) * scale)))
         for b in text_detector.boxes(probs[0], strip.shape[:2], config.threshold, config.box_score):
             if b.w >= config.line_aspect * b.h and b.h <= config.line_max_height * h:
                 out.append((b.x, b.y + top, b.w, b.h))
@@ -200,6 +202,24 @@ def box_area(boxes: list[tuple[float, float, float, float]], height: int, width:
     return float(mask.mean())
 
 
+def search_samples(frames: np.ndarray, order: list[int], rows: list[tuple[int, int]], scale: float,
+                   config: OverlayTextConfig) -> tuple[list[list], list]:
+    """Candidate boxes of the samples ``order`` searched (see the module docstring, 2), and
+    the persistent ones among them."""
+    t, h, w = frames.shape[:3]
+    found: list[list] = []
+    overlay: list = []
+    for i in order:
+        found.append(overlay_candidates(detect_in_strips(frames[i], rows, config, scale), h, config))
+        if not found[0]:
+            break
+        overlay = persistent(found, config, w, len(order)) if len(found) > 1 else []
+        if box_area(overlay, h, w) >= config.text_area_min:
+            break
+        rows = rows_around([b for boxes in found for b in boxes], h)
+    return found, overlay
+
+
 def judge(frames: np.ndarray, times: np.ndarray, config: OverlayTextConfig) -> Verdict:
     """Judge burned-in text in one scene: frames T x h x w x 3 uint8 RGB, times T seconds."""
     if not config.enabled:
@@ -215,17 +235,11 @@ def judge(frames: np.ndarray, times: np.ndarray, config: OverlayTextConfig) -> V
     # rows where the samples before found some (a box elsewhere could not persist); the search
     # stops as soon as the samples seen already make the verdict.
     order = sorted(picks.tolist(), key=lambda i: abs(i - (t - 1) / 2))
-    found: list[list] = []
-    overlay: list = []
-    search = rows
-    for i in order:
-        found.append(overlay_candidates(detect_in_strips(frames[i], search, config), h, config))
-        if not found[0]:
-            break
-        overlay = persistent(found, config, w, len(order)) if len(found) > 1 else []
-        if box_area(overlay, h, w) >= config.text_area_min:
-            break
-        search = rows_around([b for boxes in found for b in boxes], h)
+    found, overlay = search_samples(frames, order, rows, config.detect_scale, config)
+    if found and found[0] and box_area(overlay, h, w) < config.text_area_min and config.closer_scale:
+        # Text was seen but did not make the verdict: look again, closer, where it was.
+        rows = rows_around([b for boxes in found for b in boxes], h)
+        found, overlay = search_samples(frames, order, rows, config.closer_scale, config)
     text_area = box_area(overlay, h, w)
     scores = {"text_area": text_area, "text_boxes": float(len(overlay)), "text_samples": float(len(found))}
     has_text = text_area >= config.text_area_min
