@@ -17,6 +17,10 @@ screen and how it persists:
    and then only in the rows around the boxes found so far (three text heights of context
    above and below: a box elsewhere could not persist); the search stops as soon as the
    samples seen make the verdict (two that agree, under the default 2-of-3 persistence).
+   When the middle sample held text but the samples made no verdict, the search is run once
+   more at ``closer_scale`` in the rows of what was seen: small glyphs on a busy ground (a
+   caption's 1 px strokes among leaves or confetti of the same size) come out as fragments
+   at 2x and as whole lines at 3x; clean footage rarely pays for this second look.
 3. **Text-filled scenes**: an overlay is a few lines (a caption of one to three, a clock, a
    logo); a bookshelf, a shop front or a notice board shows many short words scattered over
    the picture. Boxes in one row closer than ``word_gap`` text heights are one line; a sample
