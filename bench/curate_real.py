@@ -9,7 +9,9 @@ prints:
 - verdict accuracy: each file's verdict is the outcome covering most of its frames, where a
   clip is ``reject`` when a filter rejected it, ``tag_text`` when kept with ``overlay:text``,
   ``keep`` otherwise;
-- precision and recall per label of the tag or rejection that should answer it (``LABELS``);
+- precision and recall per label of the tag or rejection that should answer it (``LABELS``: a
+  file says a label when clips covering most of its judged frames say it; a freeze, when any
+  clip is rejected as frozen), and of decode-reported corruption against ``corrupted_frames``;
 - one line per error naming the file, the frames and the program's reason.
 
 Entries marked ``uncertain`` in the labels are scored on their own line, not in the headline
@@ -39,6 +41,7 @@ from tasks.curate.analyse import analyse_video  # noqa: E402
 from tasks.curate.config import load_config  # noqa: E402
 from tasks.curate.decode import DecodeError, analysis_frames  # noqa: E402
 from tasks.curate.filters import run_filters  # noqa: E402
+from tasks.curate.quality import QualityConfig  # noqa: E402
 from tasks.curate.scenes import cut_f1  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -72,17 +75,23 @@ def _reason(*reasons):
     return lambda c: c.reject_reason in reasons
 
 
-# label -> (what answers it on one clip, what the answer is called)
+def _frozen(c) -> bool:
+    """Quality's frozen test on the clip's scores: another filter may have rejected it first."""
+    q = QualityConfig()
+    return c.reject_reason == "frozen" or (c.scores.get("frozen_s", 0.0) >= q.frozen_min_s
+                                           and c.scores.get("frozen_motion", 0.0) >= q.frozen_motion)
+
+
+# name -> (the labels it answers, what answers it on one clip, what the answer is called)
 LABELS = {
-    "animation": (_type("animation"), "type:animation"),
-    "cgi": (_type("animation"), "type:animation"),
-    "slides": (_type("slides", "screen"), "type:slides"),
-    "test_pattern": (_type("test_pattern"), "type:test_pattern"),
-    "shaky": (_reason("shake"), "rejected as shake"),
-    "static": (_reason("static"), "rejected as static"),
-    "text_timestamp": (_overlay, "overlay:text"),
-    "text_caption": (_overlay, "overlay:text"),
-    "overexposed": (_reason("overexposed"), "rejected as overexposed"),
+    "animation": ({"animation", "cgi"}, _type("animation"), "type:animation"),
+    "slides": ({"slides"}, _type("slides", "screen"), "type:slides"),
+    "test_pattern": ({"test_pattern"}, _type("test_pattern"), "type:test_pattern"),
+    "shaky": ({"shaky"}, _reason("shake"), "rejected as shake"),
+    "static": ({"static"}, _reason("static"), "rejected as static"),
+    "burned-in text": ({"text_timestamp", "text_caption"}, _overlay, "overlay:text"),
+    "overexposed": ({"overexposed"}, _reason("overexposed"), "rejected as overexposed"),
+    "frozen": ({"frozen_frames"}, _frozen, "frozen (quality's frozen_s and frozen_motion)"),
 }
 FILE_LABELS = {"corrupted_frames": "decode reported corrupt or missing frames"}
 
@@ -219,26 +228,29 @@ def report(set_name: str, results: list[dict]) -> dict:
     counts = defaultdict(Counter)
     for r in results:
         have = set(r["truth"].get("labels", []))
-        for label, (predicate, answer) in LABELS.items():
-            said = majority(r["clips"], predicate)
-            key = "tp" if (said and label in have) else "fp" if said else "fn" if label in have else "tn"
+        for label, (wanted, predicate, answer) in LABELS.items():
+            # A freeze is a stretch of a file, not most of it: any clip rejected as frozen answers it.
+            said = majority(r["clips"], predicate) if label != "frozen" else any(predicate(c) for c in r["clips"])
+            labelled = bool(wanted & have)
+            key = "tp" if (said and labelled) else "fp" if said else "fn" if labelled else "tn"
             counts[label][key] += 1
             if key == "fp":
-                lines.append(f"{r['file']}: {answer} but not labelled {label} ({r.get('why', '')})")
+                lines.append(f"{r['file']}: {answer} but not labelled {'/'.join(sorted(wanted))} ({r.get('why', '')})")
             elif key == "fn":
-                lines.append(f"{r['file']}: labelled {label}, program did not say {answer} ({r.get('why', '')})")
+                lines.append(f"{r['file']}: labelled {'/'.join(sorted(wanted & have))}, program did not say {answer} "
+                             f"({r.get('why', '')})")
         said = r["corrupt"]
         have_c = "corrupted_frames" in have
         counts["corrupted_frames"]["tp" if said and have_c else "fp" if said else "fn" if have_c else "tn"] += 1
         if said != have_c:
             lines.append(f"{r['file']}: corrupted_frames labelled {have_c}, decode reported {said}")
-    print("label            P      R    (tp fp fn)")
+    print("label             P      R    (tp fp fn)")
     for label, c in counts.items():
         if c["tp"] + c["fn"] + c["fp"] == 0:
             continue
         p = c["tp"] / (c["tp"] + c["fp"]) if c["tp"] + c["fp"] else float("nan")
         rc = c["tp"] / (c["tp"] + c["fn"]) if c["tp"] + c["fn"] else float("nan")
-        print(f"{label:15s} {p:5.2f}  {rc:5.2f}   ({c['tp']} {c['fp']} {c['fn']})")
+        print(f"{label:16s} {p:5.2f}  {rc:5.2f}   ({c['tp']} {c['fp']} {c['fn']})")
         out.setdefault("labels", {})[label] = {"precision": p, "recall": rc, **c}
     # overlay-text rejections of clips that show none
     wrong_text = [(r["file"], c) for r in results for c in r["clips"]
