@@ -40,6 +40,14 @@ unrelated pictures) while a frame within ``cut_return_s`` is that view again (>=
 ``cut_same_view``): a car or a hand passing right in front of the lens (caminandes.mp4 111:
 0.46, then 0.97 two frames later; true cuts on the dev set never come back above 0.82). A
 one-frame insert that only shares the layout (film leader cards, >= 0.86 across) stays a cut.
+A detector cut whose two sides are one view moved (best-shift correlation >= ``cut_same_view``
+at a shift of ``PAN_SHIFT`` px or more of the 64-px thumbnail) is a whip pan, not a cut
+(armwrestle.mp4 206: 0.96 at 6 px); film leader cards match in place (shift 0-1 px).
+
+A source shorter than the detector's window (``1 + 2 adaptive_window`` frames, e.g. slides
+one frame each) never has a frame judged by it: each pair of its frames is a cut where their
+unblurred 64-px thumbnails are unrelated (best-shift correlation < ``cut_left_view``; slides.avi
+0.14 and 0.20), with no minimum gap between cuts.
 
 Transition frames belong to no scene; they are reported as ``transition`` spans. Scenes
 shorter than ``min_scene_s`` are reported as ``too_short``; scenes longer than
@@ -74,6 +82,7 @@ MAX_FILL = 2  # undecoded frames in a row that get interpolated rows (see SceneS
 MAX_REFILL = 16  # longest run of frames decoded on demand: H.264 allows at most 16 B-frames in a row
 THUMB_BLUR = 2.0  # px of Gaussian blur on thumbnails: camera motion must not read as new content
 Span = tuple[int, int, str]  # (start, end exclusive, kind) in frame positions
+PAN_SHIFT = 3  # px of thumbnail shift (of 64) from which a view matched across a cut has moved: a pan
 FADE_JUMP = 0.6  # share of a fade side's luma rise taken in one step that makes the side a hard cut
 
 
@@ -261,19 +270,27 @@ def _motion_vs_blend(thumbs: np.ndarray, a: int, b: int) -> float:
     return min(_motion_residual(p, m), _motion_residual(q, m)) / max(blend, 1e-6)
 
 
-def _same_view(p: np.ndarray, q: np.ndarray) -> float:
-    """Correlation of two thumbnails' overlap at the best shift up to MOTION_SHIFT px: near 1
-    for two moments of one shot (gain and offset do not matter), near 0 for unrelated shots."""
+def _best_shift(p: np.ndarray, q: np.ndarray) -> tuple[float, int]:
+    """(correlation, shift) of two thumbnails' overlap at the best shift up to MOTION_SHIFT px;
+    shift is the larger of its two components, in px."""
     r, (h, w) = MOTION_SHIFT, p.shape
-    best = -1.0
+    best, shift = -1.0, 0
     for dy in range(-r, r + 1):
         for dx in range(-r, r + 1):
             a = p[max(0, dy): h + min(0, dy), max(0, dx): w + min(0, dx)].ravel()
             b = q[max(0, -dy): h + min(0, -dy), max(0, -dx): w + min(0, -dx)].ravel()
             a, b = a - a.mean(), b - b.mean()
             norm = float(np.sqrt((a @ a) * (b @ b)))
-            best = max(best, float(a @ b) / norm if norm > 0 else 1.0)
-    return best
+            corr = float(a @ b) / norm if norm > 0 else 1.0
+            if corr > best:
+                best, shift = corr, max(abs(dy), abs(dx))
+    return best, shift
+
+
+def _same_view(p: np.ndarray, q: np.ndarray) -> float:
+    """Correlation of two thumbnails' overlap at the best shift up to MOTION_SHIFT px: near 1
+    for two moments of one shot (gain and offset do not matter), near 0 for unrelated shots."""
+    return _best_shift(p, q)[0]
 
 
 def change_gap(max_len: int) -> int:
@@ -385,6 +402,14 @@ def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray]:
     return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, small
 
 
+def _sharp_thumb(small: np.ndarray) -> np.ndarray:
+    """An unblurred 64-px grey thumbnail: text and line art keep their strokes."""
+    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
+    h, w = grey.shape
+    size = (THUMB_WIDTH, max(1, round(h * THUMB_WIDTH / w))) if w > THUMB_WIDTH else (w, h)
+    return cv2.resize(grey, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+
+
 class _Rows:
     """A growable array of equal-shaped rows: append at the end, drop from the front."""
 
@@ -440,6 +465,7 @@ class SceneSplitter:
         self.gap = change_gap(self.max_len)
         self.thumbs: _Rows | None = None  # blurred grey thumbnails, shape set by the first frame
         self.cuts: list[int] = []  # positions of first frames after a hard cut
+        self.head: list[np.ndarray] = []  # unblurred thumbnails of the first frames (see finish)
         self.cut_checks: dict[int, bool] = {}  # cut position: rejected by _view_returns
         self.fits: dict = {}
         self.by_pts: dict[int, int] = {}
@@ -493,6 +519,8 @@ class SceneSplitter:
         gap = frame.index - self.last[0] if self.last is not None else 1
         self.last = (frame.index, frame.time, luma, thumb, sharp)
         pos = self._row(frame.index, frame.time, luma, thumb, sharp, frame.image, decoded=True)
+        if pos < 2 * self.config.adaptive_window and pos == len(self.head):
+            self.head.append(_sharp_thumb(small))
         pts = round(frame.time / MICROSECOND)
         self.by_pts[pts] = pos
         code = FrameTimecode(Timecode(pts=pts, time_base=MICROSECOND), fps=self.rate)
@@ -526,6 +554,12 @@ class SceneSplitter:
 
     def finish(self) -> list[Scene]:
         """The remaining spans, once the last frame has been pushed."""
+        if self.pushed < 1 + 2 * self.config.adaptive_window and self.config.detector == "adaptive":
+            # The detector's window never filled: no frame was judged. Each pair of frames is
+            # judged on the pictures instead (slides one frame each).
+            for pos in range(1, len(self.head)):
+                if _best_shift(self.head[pos - 1], self.head[pos])[0] < self.config.cut_left_view:
+                    self.cuts.append(pos)
         out = self._settle(self.pushed, final=True)
         out += self._close(self.open, self.pushed, self.open_cause)
         self.open = self.pushed
@@ -560,7 +594,9 @@ class SceneSplitter:
         thumbs = self.thumbs.view(cut - 1 - self.base)
         before = thumbs[0]
         views = [_same_view(before, thumbs[j]) for j in range(1, min(last, self.pushed - 1) - cut + 2)]
-        self.cut_checks[cut] = views[0] < self.config.cut_left_view and max(views) >= self.config.cut_same_view
+        across, shift = _best_shift(before, thumbs[1])
+        self.cut_checks[cut] = ((views[0] < self.config.cut_left_view and max(views) >= self.config.cut_same_view)
+                                or (across >= self.config.cut_same_view and shift >= PAN_SHIFT))
         return self.cut_checks[cut]
 
     def _settle(self, frontier: int, final: bool = False) -> list[Scene]:

@@ -90,3 +90,39 @@ def test_something_passing_right_in_front_of_the_lens_is_not_a_cut():
     other = [f for f, _ in zip(shot(2, 1.2), range(57))]
     changed = frames[:63] + [np.clip(f, 0, 255).astype(np.uint8) for f in other]
     assert [s[0] for s in spans_of(changed)] == [60]
+
+
+def whip(jump: float):
+    """A slow pan over ``plane(3)`` that jumps ``jump`` px sideways between frames 59 and 60."""
+    big = plane(3, W + 400, H + 60)
+    out = []
+    for t in range(120):
+        x = 40 + 0.5 * t + (jump if t >= 60 else 0)
+        m = np.float32([[1, 0, -x], [0, 1, -30]])
+        out.append(np.clip(cv2.warpAffine(big, m, (W, H), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT),
+                           0, 255).astype(np.uint8))
+    return out
+
+
+def test_a_whip_pan_is_not_a_cut():
+    # The frames either side of the jump are one view moved a tenth of the picture: the
+    # detector's peak is camera motion (armwrestle.mp4 206).
+    assert spans_of(whip(14)) == []
+    # A new shot at the same moment is still a cut.
+    other = [np.clip(f, 0, 255).astype(np.uint8) for f, _ in zip(shot(8, 0.5), range(60))]
+    assert [s[0] for s in spans_of(whip(14)[:60] + other)] == [60]
+
+
+def test_a_source_shorter_than_the_detector_window_is_judged_on_its_pictures():
+    # Three slides, one frame each (slides.avi): the detector's window never fills.
+    slides = []
+    for k, lines in enumerate((["TITLE"], ["lorem ipsum dolor", "sit amet, consec", "tetur adipiscing"],
+                               ["All human beings", "are born free and", "equal in dignity", "and rights."])):
+        page = np.full((H, W, 3), 250, np.uint8)
+        for j, line in enumerate(lines):
+            cv2.putText(page, line, (8 + 30 * (k == 0) + 40 * (k == 2), 20 + 18 * j + 20 * (k == 0) + 9 * (k == 2)), cv2.FONT_HERSHEY_SIMPLEX,
+                        0.9 if k == 0 else 0.45, (20, 20, 20), 1 + (k == 0), cv2.LINE_AA)
+        slides.append(page)
+    assert [s[0] for s in spans_of(slides)] == [1, 2]
+    # The same picture three times is one shot.
+    assert spans_of([slides[0]] * 3) == []
