@@ -12,7 +12,7 @@ Training clips:
 
 Model: logistic regression on a few of the filter's scene scores (``FEATURES``), standardised,
 classes weighted equally, a little L2, fitted by Newton steps in numpy. Decision: the rules'
-type, else "animation" when the model's probability reaches 0.5.
+type, else "animation" when the model's probability reaches --threshold (0.9).
 
 Printed: leave-one-video-out accuracy on the real files (each file's windows left out in turn
 and the model refitted on the rest; a file is called by the majority of its windows), for the
@@ -45,7 +45,7 @@ from tasks.curate import video_type as vt  # noqa: E402
 from tasks.curate.config import load_config  # noqa: E402
 from tasks.curate.decode import analysis_frames  # noqa: E402
 
-FEATURES = ["crisp", "still", "edge_kurtosis"]
+FEATURES = ["smooth", "bflat", "edge_kurtosis"]
 LOG = ["edge_kurtosis"]
 NONPHYSICAL = {"nonphysical_animation": "animation", "nonphysical_slides": "slides",
                "nonphysical_test_pattern": "test_pattern"}
@@ -165,7 +165,8 @@ def lovo(real, corp, threshold: float) -> tuple[list[str], dict]:
         by_model = [decide(r, pi, threshold) for r, pi in zip(held, p)]
         outcome = {}
         for key, kinds in (("rules", by_rules), ("model", by_model)):
-            majority = max(set(kinds), key=kinds.count)
+            # a tie goes to physical, as in the physical-or-not count (set order is not stable)
+            majority = max(sorted(set(kinds)), key=lambda k: (kinds.count(k), k == "physical"))
             hits[key + "_type"] += majority == truth
             nonphysical = sum(k != "physical" for k in kinds) * 2 > len(kinds)
             hits[key] += nonphysical == (truth != "physical")
@@ -190,7 +191,7 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=4.0)
     ap.add_argument("--heldout", type=Path, default=None, help="a curate_quality --corpus folder of held-out seeds")
     ap.add_argument("--window", type=int, default=48)
-    ap.add_argument("--threshold", type=float, default=0.5)
+    ap.add_argument("--threshold", type=float, default=0.9)
     ap.add_argument("--write", action="store_true", help="store the model in tasks/curate/video_type_model.json")
     args = ap.parse_args()
     if set(args.seeds) - set(TUNING_SEEDS):
