@@ -46,7 +46,16 @@ class RgbAdaptiveDetector(_RgbScore, AdaptiveDetector):
     the gap (motion saturates the HSV difference), and the power was chosen on the tuning
     seeds 400-405 by replaying their scores: 1 (linear) let 14 more false cuts through, 0.5
     recovered 4 missed cuts and added none. With every gap 1 this is the stock ratio, to the bit.
+
+    ``weak_threshold`` (below ``adaptive_threshold``) also collects, in ``weak``, the frames
+    whose ratio reaches it but not the threshold (with the same floor and gap to the last
+    cut): candidates the splitter may confirm on the pictures. None collects nothing.
     """
+
+    def __init__(self, *args, weak_threshold: float | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.weak_threshold = weak_threshold
+        self.weak: list[FrameTimecode] = []
 
     def process_frame(self, timecode: FrameTimecode, frame_img: np.ndarray, gap: int = 1) -> list[FrameTimecode]:
         ContentDetector.process_frame(self, timecode=timecode, frame_img=frame_img)
@@ -70,6 +79,9 @@ class RgbAdaptiveDetector(_RgbScore, AdaptiveDetector):
                 and target_timecode - self._last_cut >= self.min_scene_len):
             self._last_cut = target_timecode
             return [target_timecode]
+        if (self.weak_threshold is not None and self.weak_threshold <= ratio < self.adaptive_threshold
+                and target_score >= self.min_content_val and target_timecode - self._last_cut >= self.min_scene_len):
+            self.weak.append(target_timecode)
         return []
 
 

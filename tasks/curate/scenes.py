@@ -44,6 +44,16 @@ A detector cut whose two sides are one view moved (best-shift correlation >= ``c
 at a shift of ``PAN_SHIFT`` px or more of the 64-px thumbnail) is a whip pan, not a cut
 (armwrestle.mp4 206: 0.96 at 6 px); film leader cards match in place (shift 0-1 px).
 
+A detector peak of ratio ``cut_weak_ratio`` (2) or more that stays under the threshold (3) is a
+cut when the pictures either side are unrelated: best-shift correlation of the blurred
+thumbnails below ``cut_unrelated`` (0.35), computed inside letterbox and pillarbox bars (border
+rows and columns darker than ``BAR_DARK`` in every frame seen so far, less the row at each
+bar's edge), since bars shared by both frames make any two pictures correlate. Fast motion on
+both sides of a cut raises the neighbours' scores and so lowers the ratio (sintel.mp4 76 and
+118: ratio 2-3, correlation 0.05-0.28 inside the bars); a weak peak within one view (an
+exposure or keyframe quality pop, a car crossing: 0.46 and up) stays no cut. Confirmed peaks
+keep the detector's minimum gap to its cuts and pass the same checks as its cuts.
+
 A source shorter than the detector's window (``1 + 2 adaptive_window`` frames, e.g. slides
 one frame each) never has a frame judged by it: each pair of its frames is a cut where their
 unblurred 64-px thumbnails are unrelated (best-shift correlation < ``cut_left_view``; slides.avi
@@ -114,6 +124,8 @@ class SceneConfig(BaseModel):
     cut_same_view: float = Field(0.9, le=1, description="best-shift correlation of the view come back after a cut")
     cut_return_s: float = Field(0.33, ge=0, description="how long after a cut the view before may come back")
     dissolve_same_view: float = Field(0.5, le=1, description="correlation of the ends, best shift, of one view")
+    cut_weak_ratio: float = Field(2.0, gt=0, description="adaptive ratio from which a peak may be confirmed as a cut")
+    cut_unrelated: float = Field(0.35, le=1, description="picture correlation, best shift, that confirms a weak peak")
 
 
 SpanKind = Literal["scene", "too_short", "transition"]
@@ -159,7 +171,9 @@ def _detector(config: SceneConfig):
         return RgbContentDetector(threshold=config.content_threshold, min_scene_len=config.min_cut_gap_s,
                                   filter_mode=FlashFilter.Mode.SUPPRESS)
     return RgbAdaptiveDetector(adaptive_threshold=config.adaptive_threshold, min_scene_len=config.min_cut_gap_s,
-                               window_width=config.adaptive_window, min_content_val=config.min_content_val)
+                               window_width=config.adaptive_window, min_content_val=config.min_content_val,
+                               weak_threshold=config.cut_weak_ratio if config.cut_weak_ratio < config.adaptive_threshold
+                               else None)
 
 
 def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
@@ -385,9 +399,9 @@ def find_transitions(luma: np.ndarray, sharp: np.ndarray, thumbs: np.ndarray, ma
     return sorted(merged + [c for c in cuts if not any(a < c[0] < b for a, b, _ in merged)])
 
 
-def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray]:
-    """(mean luma, blurred 64-px grey thumbnail, mean squared gradient, half-size RGB frame)
-    of an RGB analysis frame. Frames wider than 160 px are measured at half size: the same
+def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray, np.ndarray]:
+    """(mean luma, blurred 64-px grey thumbnail, mean squared gradient, half-size RGB frame,
+    unblurred 64-px grey thumbnail) of an RGB analysis frame. Frames wider than 160 px are measured at half size: the same
     cuts and transitions on our corpus and on bikes.mp4, at a quarter of the cost."""
     h, w = image.shape[:2]
     small = image if w <= 160 else cv2.resize(image, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
@@ -399,15 +413,26 @@ def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray]:
     gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
     sharp = float(cv2.mean(gx * gx + gy * gy)[0])
     # Blurred so that sub-pixel camera motion does not read as a change of content.
-    return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, small
+    return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, small, thumb
 
 
-def _sharp_thumb(small: np.ndarray) -> np.ndarray:
-    """An unblurred 64-px grey thumbnail: text and line art keep their strokes."""
-    grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
-    h, w = grey.shape
-    size = (THUMB_WIDTH, max(1, round(h * THUMB_WIDTH / w))) if w > THUMB_WIDTH else (w, h)
-    return cv2.resize(grey, size, interpolation=cv2.INTER_AREA).astype(np.float32)
+BAR_DARK = 24  # grey level under which a border row or column of every frame is a bar (filters.active_box)
+
+
+def _picture_box(peak: np.ndarray) -> tuple[int, int, int, int]:
+    """(top, bottom, left, right) of the picture inside bars, from the running maximum of
+    the unblurred thumbnails: border rows (columns) darker than BAR_DARK in every frame seen
+    (98th percentile, as ``filters.active_box``). A crop that leaves less than half is no bar."""
+    h, w = peak.shape
+    rows = np.flatnonzero(np.percentile(peak, 98, axis=1) >= BAR_DARK)
+    cols = np.flatnonzero(np.percentile(peak, 98, axis=0) >= BAR_DARK)
+    if rows.size == 0 or cols.size == 0:
+        return 0, h, 0, w
+    top, bottom, left, right = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    if bottom - top < h // 2 or right - left < w // 2:
+        return 0, h, 0, w
+    # A row (column) at a bar's edge is part bar in both frames, which makes them look alike.
+    return top + (top > 0), bottom - (bottom < h), left + (left > 0), right - (right < w)
 
 
 class _Rows:
@@ -467,6 +492,10 @@ class SceneSplitter:
         self.cuts: list[int] = []  # positions of first frames after a hard cut
         self.head: list[np.ndarray] = []  # unblurred thumbnails of the first frames (see finish)
         self.cut_checks: dict[int, bool] = {}  # cut position: rejected by _view_returns
+        self.weak: list[int] = []  # positions of detector peaks below its threshold (see _unrelated)
+        self.weak_checks: dict[int, bool] = {}  # weak peak position: confirmed by _unrelated
+        self.raw: _Rows | None = None  # unblurred grey thumbnails
+        self.peak: np.ndarray | None = None  # their running maximum over decoded frames (letterbox bars)
         self.fits: dict = {}
         self.by_pts: dict[int, int] = {}
         self.open = 0  # position where the open span starts
@@ -508,24 +537,29 @@ class SceneSplitter:
         return out + self._push(frame, features)
 
     def _push(self, frame: AnalysisFrame, features) -> list[Scene]:
-        luma, thumb, sharp, small = features
+        luma, thumb, sharp, small, raw = features
         if self.last is not None and 1 < frame.index - self.last[0] <= MAX_FILL + 1:
-            i0, t0, l0, th0, s0 = self.last
+            i0, t0, l0, th0, s0, r0 = self.last
             steps = frame.index - i0
             for k in range(1, steps):
                 w = k / steps
                 self._row(i0 + k, t0 + w * (frame.time - t0), (1 - w) * l0 + w * luma, (1 - w) * th0 + w * thumb,
-                          (1 - w) * s0 + w * sharp, None, decoded=False)
+                          (1 - w) * s0 + w * sharp, None, decoded=False, raw=(1 - w) * r0 + w * raw)
         gap = frame.index - self.last[0] if self.last is not None else 1
-        self.last = (frame.index, frame.time, luma, thumb, sharp)
-        pos = self._row(frame.index, frame.time, luma, thumb, sharp, frame.image, decoded=True)
+        self.last = (frame.index, frame.time, luma, thumb, sharp, raw)
+        pos = self._row(frame.index, frame.time, luma, thumb, sharp, frame.image, decoded=True, raw=raw)
+        self.peak = raw.copy() if self.peak is None or self.peak.shape != raw.shape else np.maximum(self.peak, raw)
         if pos < 2 * self.config.adaptive_window and pos == len(self.head):
-            self.head.append(_sharp_thumb(small))
+            self.head.append(raw)
         pts = round(frame.time / MICROSECOND)
         self.by_pts[pts] = pos
         code = FrameTimecode(Timecode(pts=pts, time_base=MICROSECOND), fps=self.rate)
         for cut in self.detector.process_frame(code, small, gap):
             self.cuts.append(self.by_pts.get(cut.pts, pos))
+        weak = getattr(self.detector, "weak", None)  # peaks below the threshold (see _unrelated)
+        if weak:
+            self.weak += [self.by_pts.get(cut.pts, pos) for cut in weak]
+            weak.clear()
         if len(self.by_pts) > 64:
             del self.by_pts[next(iter(self.by_pts))]
         if pos - self.settled < 16:
@@ -534,7 +568,7 @@ class SceneSplitter:
         return self._settle(pos + 1 - self.lag)
 
     def _row(self, index: int, time: float, luma: float, thumb: np.ndarray, sharp: float,
-             image: np.ndarray | None, decoded: bool) -> int:
+             image: np.ndarray | None, decoded: bool, raw: np.ndarray | None = None) -> int:
         pos = self.pushed
         self.pushed += 1
         self.index.append(index)
@@ -543,6 +577,8 @@ class SceneSplitter:
         self.images.append(image if self.keep_frames else None)  # from position self.shown
         if self.thumbs is None:
             self.thumbs = _Rows(np.float32, thumb.shape)
+            self.raw = _Rows(np.float32, thumb.shape)
+        self.raw.append(thumb if raw is None else raw)
         self.luma.append(luma)
         self.thumbs.append(thumb)
         self.sharp.append(sharp)
@@ -577,9 +613,28 @@ class SceneSplitter:
                                      ended=final, cache=self.fits, offset=lo, change=self.change.view(lo - self.base))
             spans = [(a + lo, b + lo, kind) for a, b, kind in found if a + lo >= start]
         near = self.absorb
-        cuts = [(c, c, "cut") for c in self.cuts if not any(a - near <= c < b + near for a, b, _ in spans)
+        found = sorted(self.cuts)
+        gap = max(1, round(self.config.min_cut_gap_s * self.fps))
+        for c in sorted(self.weak):
+            if not any(abs(c - k) < gap for k in found) and self._unrelated(c):
+                found = sorted(found + [c])
+        cuts = [(c, c, "cut") for c in found if not any(a - near <= c < b + near for a, b, _ in spans)
                 and not self._view_returns(c, final)]
         return sorted(s for s in spans + cuts if s[0] > self.open or (s[2] != "cut" and s[1] > self.open))
+
+    def _unrelated(self, cut: int) -> bool:
+        """Whether the pictures either side of a weak detector peak are unrelated: best-shift
+        correlation of their blurred thumbnails, letterbox and pillarbox bars cut off (bars
+        seen so far, as dark border rows and columns of every decoded frame), below
+        ``cut_unrelated``."""
+        if cut not in self.weak_checks:
+            if cut - 1 < self.base:
+                return False
+            top, bottom, left, right = _picture_box(self.peak)
+            p, q = (cv2.GaussianBlur(np.ascontiguousarray(t[top:bottom, left:right]), (0, 0), THUMB_BLUR)
+                    for t in self.raw.view(cut - 1 - self.base)[:2])
+            self.weak_checks[cut] = _same_view(p, q) < self.config.cut_unrelated
+        return self.weak_checks[cut]
 
     def _view_returns(self, cut: int, final: bool) -> bool:
         """Whether the view before a detector cut leaves and comes back: the frame after the cut
@@ -683,10 +738,11 @@ class SceneSplitter:
             return
         for store in (self.index, self.times, self.decoded):
             del store[:drop]
-        for rows in (self.luma, self.sharp, self.thumbs, self.change):
+        for rows in (self.luma, self.sharp, self.thumbs, self.change, self.raw):
             rows.drop(drop)
         self.base += drop
         self.cuts = [c for c in self.cuts if c >= self.base]
+        self.weak = [c for c in self.weak if c >= self.base]
         self.fits = {key: fit for key, fit in self.fits.items() if key[0] > self.base}
 
 

@@ -126,3 +126,25 @@ def test_a_source_shorter_than_the_detector_window_is_judged_on_its_pictures():
     assert [s[0] for s in spans_of(slides)] == [1, 2]
     # The same picture three times is one shot.
     assert spans_of([slides[0]] * 3) == []
+
+
+def letterboxed(frames, bar: int = 12):
+    """uint8 frames with black bars ``bar`` px high at the top and the bottom."""
+    out = []
+    for frame in frames:
+        frame = np.clip(frame, 0, 255).astype(np.uint8)
+        frame[:bar] = frame[-bar:] = 0
+        out.append(frame)
+    return out
+
+
+def test_a_weak_peak_between_unrelated_pictures_is_a_cut():
+    # A fast pan cut to another fast pan inside letterbox bars: the cut's HSV score is only
+    # 2.6 times its neighbours' (threshold 3), as on sintel.mp4 76 and 118. Without the bars
+    # the two pictures are unrelated (best-shift correlation < 0.35): a cut.
+    a = letterboxed(f for f, _ in zip(shot(1, 6), range(60)))
+    b = letterboxed(f for f, _ in zip(shot(7, 6), range(60)))
+    assert [s[0] for s in spans_of(a + b)] == [60]
+    # A weak peak of the same view (an exposure pop, ratio 2.35) is no cut.
+    pop = letterboxed(f * (1.0 if i < 60 else 1.5) for i, (f, _) in enumerate(zip(shot(1, 2), range(120))))
+    assert spans_of(pop) == []
