@@ -69,7 +69,7 @@ def decode(path: Path, config) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def scene_row(frames, times) -> dict:
-    verdict = vt.judge(frames, times, vt.VideoTypeConfig())
+    verdict = vt.judge(frames, times, vt.VideoTypeConfig(measure_rendered=True))
     row = {k[len("type_"):]: v for k, v in verdict.scores.items()}
     row["kind"] = verdict.tags[0][len("type:"):]
     return row

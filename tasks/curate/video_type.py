@@ -106,8 +106,12 @@ class VideoTypeConfig(FilterConfig):
     screen_lines: float = 0.5
     screen_still: float = 0.95
     # The fitted rendered-versus-camera model (see the module docstring): scenes the rules call
-    # physical become "animation" at this probability or above; None: reported, never decides.
+    # physical become "animation" at this probability or above; None: never decides.
     rendered_min: float | None = None
+    # Measure the model's inputs and report type_rendered even when it does not decide. Off by
+    # default: its bilateral filter on 8 samples is about a fifth of the analysis pass's filter
+    # time, spent on a score nothing reads (bench/curate_speed.py).
+    measure_rendered: bool = False
 
 
 MODEL_PATH = Path(__file__).with_name("video_type_model.json")
@@ -255,10 +259,11 @@ def judge(frames: np.ndarray, times: np.ndarray, config: VideoTypeConfig) -> Ver
     scores["still"] = still
     scores["change"] = change
     scores["hold_s"] = float(np.median(np.diff(times)[index[steps]])) if steps.any() else 0.0
-    scores["edge_kurtosis"] = float(np.median([edge_kurtosis(f) for f in picked]))
-    scores["smooth"], scores["bflat"] = map(float, np.median([shading(f) for f in picked], axis=0))
     kind = classify(scores, config)
-    scores["rendered"] = rendered_probability(scores)
+    if config.measure_rendered or config.rendered_min is not None:
+        scores["edge_kurtosis"] = float(np.median([edge_kurtosis(f) for f in picked]))
+        scores["smooth"], scores["bflat"] = map(float, np.median([shading(f) for f in picked], axis=0))
+        scores["rendered"] = rendered_probability(scores)
     if kind == "physical" and config.rendered_min is not None and scores["rendered"] >= config.rendered_min:
         kind = "animation"
     keep = kind in config.allow and kind not in config.block

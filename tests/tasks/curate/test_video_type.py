@@ -242,7 +242,8 @@ def test_the_fitted_model_scores_a_clean_render_above_camera_footage():
     render = np.stack([lit_render(t) for t in range(24)])
     camera = footage()[:24]
     times = TIMES[:24]
-    r, c = judge(render, times, VideoTypeConfig()), judge(camera, times, VideoTypeConfig())
+    measured = VideoTypeConfig(measure_rendered=True)
+    r, c = judge(render, times, measured), judge(camera, times, measured)
     # The rules call both physical (dozens of colours, moving); the model tells them apart.
     assert "type:physical" in r.tags and "type:physical" in c.tags
     assert r.scores["type_edge_kurtosis"] > 3 * c.scores["type_edge_kurtosis"]
@@ -264,7 +265,7 @@ def test_real_cgi_scores_above_real_camera_footage():
     p = {}
     for name in ("caminandes.mp4", "tos.mp4", "hikers.mp4"):
         frames = np.stack([f.image for f in itertools.islice(analysis_frames(folder / name), 60)])
-        p[name] = judge(frames, np.arange(len(frames)) / 24.0, VideoTypeConfig()).scores["type_rendered"]
+        p[name] = judge(frames, np.arange(len(frames)) / 24.0, VideoTypeConfig(measure_rendered=True)).scores["type_rendered"]
     threshold = load_model()["evaluation"]["threshold"]
     assert p["caminandes.mp4"] >= threshold > max(p["tos.mp4"], p["hikers.mp4"]), p
 
@@ -296,5 +297,5 @@ def test_shading_sees_soft_gradients_and_fills_under_blocking():
     cel = np.clip(cel + blocks + rng.normal(0, 1.5, cel.shape), 0, 255).astype(np.uint8)
     assert shading(cel)[1] > 0.9 > 0.6 > frame_features(cel, VideoTypeConfig())[0]
     assert shading(footage()[0])[1] < 0.2
-    scores = judge(footage(), TIMES, VideoTypeConfig()).scores
+    scores = judge(footage(), TIMES, VideoTypeConfig(measure_rendered=True)).scores
     assert 0 <= scores["type_smooth"] <= 1 and 0 <= scores["type_bflat"] <= 1
