@@ -94,7 +94,12 @@ def active_box(frames: np.ndarray, dark: int = 24) -> tuple[int, int, int, int]:
     frame; bars count neither as flat nor as underexposed picture. frames: N x h x w x 3 uint8.
     """
     peak = frames.max(axis=0)  # over frames first: numpy reduces a 3-wide last axis slowly
-    peak = np.maximum(np.maximum(peak[..., 0], peak[..., 1]), peak[..., 2])
+    return picture_box(np.maximum(np.maximum(peak[..., 0], peak[..., 1]), peak[..., 2]), dark)
+
+
+def picture_box(peak: np.ndarray, dark: int = 24) -> tuple[int, int, int, int]:
+    """``active_box`` of an h x w brightest-seen picture (each pixel's maximum over the frames):
+    border rows (columns) whose 98th percentile stays under ``dark`` are bars."""
     h, w = peak.shape
     rows = np.flatnonzero(np.percentile(peak, 98, axis=1) >= dark)
     cols = np.flatnonzero(np.percentile(peak, 98, axis=0) >= dark)

@@ -85,6 +85,7 @@ from scenedetect.detector import FlashFilter
 from tasks.curate.decode import (AnalysisConfig, AnalysisFrame, DecodeError, DecodeReport, ExactFrames, SourceInfo,
                                  analysis_frames, probe)
 from tasks.curate.detectors import RgbAdaptiveDetector, RgbContentDetector
+from tasks.curate.filters import picture_box
 
 MICROSECOND = Fraction(1, 1_000_000)
 THUMB_WIDTH = 64
@@ -437,13 +438,7 @@ def _picture_box(peak: np.ndarray) -> tuple[int, int, int, int]:
     the unblurred thumbnails: border rows (columns) darker than BAR_DARK in every frame seen
     (98th percentile, as ``filters.active_box``). A crop that leaves less than half is no bar."""
     h, w = peak.shape
-    rows = np.flatnonzero(np.percentile(peak, 98, axis=1) >= BAR_DARK)
-    cols = np.flatnonzero(np.percentile(peak, 98, axis=0) >= BAR_DARK)
-    if rows.size == 0 or cols.size == 0:
-        return 0, h, 0, w
-    top, bottom, left, right = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
-    if bottom - top < h // 2 or right - left < w // 2:
-        return 0, h, 0, w
+    top, bottom, left, right = picture_box(peak, BAR_DARK)
     # A row (column) at a bar's edge is part bar in both frames, which makes them look alike.
     return top + (top > 0), bottom - (bottom < h), left + (left > 0), right - (right < w)
 
