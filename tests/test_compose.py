@@ -161,7 +161,7 @@ def test_commands_exist_and_parse(name):
 # -- services talk to each other -------------------------------------------------------------------
 def test_pool_is_the_same_everywhere():
     pools = {POOL}
-    pools |= {d["work_pool"]["name"] for d in PREFECT_YAML["deployments"] + PREFECT_YAML.get("planned-deployments", [])}
+    pools |= {d["work_pool"]["name"] for d in PREFECT_YAML["deployments"]}
     for name in ("worker", "deploy", "<Dockerfile CMD>"):
         for argv in command_lines(SERVICES.get(name, {})):
             command, args = prefect_parse(argv)

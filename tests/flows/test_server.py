@@ -27,7 +27,6 @@ from tests.support import MANIFESTS, REPO
 
 PREFECT_YAML = yaml.safe_load((REPO / "prefect.yaml").read_text())
 LIVE = PREFECT_YAML["deployments"]
-PLANNED = PREFECT_YAML.get("planned-deployments", [])
 RUN_TIMEOUT_S = 180
 
 
@@ -70,15 +69,7 @@ def test_live_deployment_matches_its_flow(deployment):
     assert required <= params, f"{deployment['entrypoint']} needs {sorted(required - params)} for a scheduled run"
 
 
-@pytest.mark.parametrize("deployment", PLANNED, ids=lambda d: d["entrypoint"])
-def test_planned_deployment_is_not_built_yet(deployment):
-    # `prefect deploy --all` fails on an entrypoint it cannot import, so a flow not built yet
-    # stays out of `deployments:`; once built, it must move in or it is never deployed.
-    assert deployment["entrypoint"] not in FLOWS and not (REPO / deployment["entrypoint"].split(":")[0]).exists(), (
-        f"{deployment['entrypoint']} exists now: move its block from planned-deployments to deployments in prefect.yaml")
-
-
-@pytest.mark.parametrize("deployment", LIVE + PLANNED, ids=lambda d: d["entrypoint"])
+@pytest.mark.parametrize("deployment", LIVE, ids=lambda d: d["entrypoint"])
 def test_every_deployment_names_a_valid_manifest_and_the_pool(deployment):
     assert deployment["work_pool"]["name"] == POOL
     manifests = [v for k, v in deployment["parameters"].items() if k in ("manifest", "manifest_path")]
@@ -94,9 +85,9 @@ def test_every_deployment_names_a_valid_manifest_and_the_pool(deployment):
 def test_every_flow_has_a_deployment_and_curate_runs_nightly():
     deployed = {d["entrypoint"] for d in LIVE}
     assert set(FLOWS) <= deployed, f"flows without a deployment in prefect.yaml: {sorted(set(FLOWS) - deployed)}"
-    flows = {flow_name(d) for d in LIVE + PLANNED}
+    flows = {flow_name(d) for d in LIVE}
     assert flows >= {"register", "simulate", "curate", "tokenize", "train", "panels", "evaluate", "loop"}
-    curate = next(d for d in LIVE + PLANNED if flow_name(d) == "curate")
+    curate = next(d for d in LIVE if flow_name(d) == "curate")
     (schedule,) = curate["schedules"]
     minute, hour, *rest = schedule["cron"].split()
     assert rest == ["*", "*", "*"] and int(hour) < 6 and schedule["timezone"] == "UTC"
