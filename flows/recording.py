@@ -1,23 +1,27 @@
 """How a flow records itself: one run row, manifest rows, and batched lineage writes.
 
 The flow process is the only writer (DuckDB locks the file per process); tasks return
-`LineageBatch`es and the flow hands them to `RunContext.write`. A run holds the data root's
+`LineageBatch`es and the flow hands them to `RunContext.write`. A stage over one input goes
+through `RunContext.stage`: whether a finished run covered it already, its timing, its
+stage-run record and the lineage write that finishes it. A run holds the data root's
 writer lock (warehouse/lock.py; the command that started it usually holds it already), and an
 interrupted run is closed as failed with the signal named.
 """
 
 from __future__ import annotations
 
+import time
 import uuid
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from flows import ephemeral
 from schemas.hashing import stable_id
 from schemas.manifest import ScenarioManifest, manifest_hash
-from schemas.records import LineageBatch, RunRecord
+from schemas.records import LineageBatch, RunRecord, StageRunRecord
 from schemas.settings import Settings
 from tasks import faults, manifests
 from warehouse import lock
@@ -52,6 +56,22 @@ class RunContext:
         done = self.warehouse.completed_stage_runs(stage, input_keys)
         return [k for k in input_keys if k not in done]
 
+    def stage(self, name: str, key: str, outputs: Iterable[Path] = (), manifest_hash: Any = ...,
+              started: float | None = None) -> Stage:
+        """Stage ``name`` over input ``key``, timed from now (or ``started``). ``manifest_hash``
+        defaults to the run's. Lineage is asked whether it is done only when `Stage.done` is read."""
+        return Stage(self, name, key, self.manifest_hash if manifest_hash is ... else manifest_hash,
+                     time.perf_counter() if started is None else started, tuple(outputs))
+
+    def stages(self, name: str, keys: Iterable[str], manifest_hash: Any = ...) -> dict[str, Stage]:
+        """`stage` for many inputs of one stage, whether each is done looked up in lineage at once."""
+        keys = list(keys)
+        todo = set(self.pending(name, keys))
+        out = {k: self.stage(name, k, manifest_hash=manifest_hash) for k in keys}
+        for key, stage in out.items():
+            stage._done = key not in todo
+        return out
+
     def write(self, batch: LineageBatch) -> None:
         if len(batch):
             self.written += self.warehouse.write(batch)
@@ -59,6 +79,49 @@ class RunContext:
     def fail_input(self, what: str) -> None:
         self.failures.append(what)
         self.status = "partial"
+
+
+@dataclass
+class Stage:
+    """One stage over one input (`RunContext.stage`); `finish` records it with its lineage."""
+
+    run: RunContext
+    name: str
+    key: str
+    manifest_hash: str | None
+    started: float  # time.perf_counter() when the stage started (`restart` moves it)
+    outputs: tuple[Path, ...] = ()
+    _done: bool | None = None
+
+    @property
+    def done(self) -> bool:
+        """A finished run covered this input and every one of its ``outputs`` is still there: skip it."""
+        if self._done is None:
+            self._done = not self.run.pending(self.name, [self.key]) and all(Path(p).exists() for p in self.outputs)
+        return self._done
+
+    def restart(self) -> Stage:
+        """Time the stage from now (when its work starts later than it was looked up)."""
+        self.started = time.perf_counter()
+        return self
+
+    @property
+    def id(self) -> str:
+        """The stage run's id: its lineage rows point at it before the record is written."""
+        return self.run.stage_run_id(self.name, self.key)
+
+    def record(self, n_in: int, n_out: int, attrs: dict[str, Any] | None = None,
+               status: str = "completed") -> StageRunRecord:
+        return StageRunRecord(stage_run_id=self.id, run_id=self.run.run_id, stage=self.name, input_key=self.key,
+                              manifest_hash=self.manifest_hash, status=status, n_in=n_in, n_out=n_out,
+                              seconds=round(time.perf_counter() - self.started, 3), attrs=attrs or {})
+
+    def finish(self, n_in: int, n_out: int, batch: LineageBatch | None = None, attrs: dict[str, Any] | None = None,
+               status: str = "completed") -> StageRunRecord:
+        """The stage-run record (the marker a re-run skips on) written with ``batch`` in one write."""
+        record = self.record(n_in, n_out, attrs, status)
+        self.run.write(LineageBatch(stage_runs=[record]).extend(batch or LineageBatch()))
+        return record
 
 
 @contextmanager
