@@ -20,27 +20,9 @@ from tasks.curate.decode import (
     is_reference,
     probe,
 )
+from tests.support import coded, read_index
 
 DATA = Path(__file__).resolve().parents[3] / "../shared/data/videos"
-
-
-def coded(i: int, w: int = 64, h: int = 48) -> np.ndarray:
-    """H x W x 3 frame carrying i in two grey blocks (i % 16 and i // 16, 14 levels apart)
-    on a textured, moving background."""
-    y, x = np.mgrid[0:h, 0:w]
-    frame = np.stack([(x * 3 + i) % 256, (y * 5) % 256, ((x + y + 2 * i) * 2) % 256], axis=-1).astype(np.uint8)
-    frame[: h // 2, : w // 4] = 20 + 14 * (i % 16)
-    frame[: h // 2, w // 4: w // 2] = 20 + 14 * (i // 16)
-    return frame
-
-
-def read_index(image: np.ndarray) -> int:
-    """Inverse of ``coded`` for a frame of any size in the original orientation."""
-    h, w = image.shape[:2]
-    grey = image.astype(np.float64).mean(axis=-1)
-    low = grey[h // 16: h // 2 - h // 16, w // 32: w // 4 - w // 32].mean()
-    high = grey[h // 16: h // 2 - h // 16, w // 4 + w // 32: w // 2 - w // 32].mean()
-    return int(round((low - 20) / 14)) + 16 * int(round((high - 20) / 14))
 
 
 def test_probe_reports_what_the_file_declares(make_video):

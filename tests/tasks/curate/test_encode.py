@@ -10,23 +10,7 @@ import pytest
 import tasks.curate.encode as encode
 from tasks.curate.decode import AnalysisConfig, analysis_frames, probe
 from tasks.curate.encode import EncodeConfig, encode_clip, encode_clips, x264_cpu_limit
-
-
-def coded(i: int, w: int = 64, h: int = 48) -> np.ndarray:
-    """H x W x 3 frame carrying i in two grey blocks (i % 16, i // 16) on a moving texture."""
-    y, x = np.mgrid[0:h, 0:w]
-    frame = np.stack([(x * 3 + i) % 256, (y * 5) % 256, ((x + y + 2 * i) * 2) % 256], axis=-1).astype(np.uint8)
-    frame[: h // 2, : w // 4] = 20 + 14 * (i % 16)
-    frame[: h // 2, w // 4: w // 2] = 20 + 14 * (i // 16)
-    return frame
-
-
-def read_index(image: np.ndarray) -> int:
-    h, w = image.shape[:2]
-    grey = image.astype(np.float64).mean(axis=-1)
-    low = grey[h // 16: h // 2 - h // 16, w // 32: w // 4 - w // 32].mean()
-    high = grey[h // 16: h // 2 - h // 16, w // 4 + w // 32: w // 2 - w // 32].mean()
-    return int(round((low - 20) / 14)) + 16 * int(round((high - 20) / 14))
+from tests.support import coded, read_index
 
 
 def clip_frames(path) -> list[np.ndarray]:
