@@ -82,6 +82,14 @@ def unusual_videos(folder: Path) -> list[Path]:
     ]
 
 
+def small_manifest(folder: Path, horizon_s: float = 2.5) -> Path:
+    """``folder/small.yaml``: conveyor_push at 64 x 64 for ``horizon_s`` seconds, a quick episode."""
+    text = (MANIFESTS / "conveyor_push.yaml").read_text()
+    path = Path(folder) / "small.yaml"
+    path.write_text(text.replace("horizon_s: 5.0", f"horizon_s: {horizon_s}").replace("[128, 128]", "[64, 64]"))
+    return path
+
+
 # -- frames that carry their own index (the curate decode and encode tests) ---------------------
 def coded(i: int, w: int = 64, h: int = 48) -> np.ndarray:
     """H x W x 3 frame carrying i in two grey blocks (i % 16 and i // 16, 14 levels apart)

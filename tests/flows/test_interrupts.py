@@ -20,17 +20,10 @@ import pytest
 
 from warehouse.store import Warehouse
 
-from tests.support import MANIFESTS, REPO
+from tests.support import REPO, small_manifest
 
 START_TIMEOUT_S = 300  # Prefect's temporary server takes 10-40 s to start on a busy two-core machine
 EXIT_WITHIN_S = 10.0
-
-
-def _small_manifest(folder: Path) -> Path:
-    text = (MANIFESTS / "conveyor_push.yaml").read_text()
-    path = folder / "small.yaml"
-    path.write_text(text.replace("horizon_s: 5.0", "horizon_s: 2.5").replace("[128, 128]", "[64, 64]"))
-    return path
 
 
 def processes_of(root: Path) -> list[str]:
@@ -56,7 +49,7 @@ def _start(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     root = tmp_path / "root"
     env = {k: v for k, v in os.environ.items() if not k.startswith(("WORLDLINE_", "PREFECT_"))}
     env |= {"WORLDLINE_DATA_ROOT": str(root), "PYTHONDONTWRITEBYTECODE": "1"}
-    command = [str(REPO / ".venv" / "bin" / "worldline"), "simulate", str(_small_manifest(tmp_path)),
+    command = [str(REPO / ".venv" / "bin" / "worldline"), "simulate", str(small_manifest(tmp_path)),
                "--episodes", "500"]
     proc = subprocess.Popen(command, env=env, cwd=REPO, start_new_session=True, stdout=subprocess.PIPE,
                             stderr=subprocess.STDOUT, text=True)

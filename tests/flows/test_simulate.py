@@ -1,22 +1,13 @@
-from pathlib import Path
-
 from flows.simulate import simulate
 from schemas.settings import Settings
 from warehouse import audit
 from warehouse.store import Warehouse
 
-from tests.support import MANIFESTS
-
-
-def _small_manifest(tmp_path: Path) -> Path:
-    text = (MANIFESTS / "conveyor_push.yaml").read_text()
-    path = tmp_path / "small.yaml"
-    path.write_text(text.replace("horizon_s: 5.0", "horizon_s: 2.5").replace("[128, 128]", "[64, 64]"))
-    return path
+from tests.support import small_manifest
 
 
 def test_simulate_records_episodes_and_skips_finished_ones(prefect_harness, data_root, tmp_path):
-    manifest = _small_manifest(tmp_path)
+    manifest = small_manifest(tmp_path)
     assert simulate(str(manifest), 2)["new"] == 2
     assert simulate(str(manifest), 3)["new"] == 1
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
@@ -32,7 +23,7 @@ def test_simulate_records_episodes_and_skips_finished_ones(prefect_harness, data
 def test_curating_episode_videos_extends_their_lineage(prefect_harness, data_root, tmp_path):
     from flows.curate import curate
 
-    manifest = _small_manifest(tmp_path)
+    manifest = small_manifest(tmp_path)
     digest = simulate(str(manifest), 1)["manifest_hash"]
     curate([str(data_root / "episodes")], str(manifest))
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
@@ -54,7 +45,7 @@ def test_an_episode_finished_before_another_fails_is_recorded(prefect_harness, d
     import flows.simulate
     from tasks.sim import episode
 
-    manifest = _small_manifest(tmp_path)
+    manifest = small_manifest(tmp_path)
     real = episode.rollout
 
     def rollout(scenario, seed):
