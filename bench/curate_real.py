@@ -93,7 +93,7 @@ LABELS = {
     "overexposed": ({"overexposed"}, _reason("overexposed"), "rejected as overexposed"),
     "frozen": ({"frozen_frames"}, _frozen, "frozen (quality's frozen_s and frozen_motion)"),
 }
-FILE_LABELS = {"corrupted_frames": "decode reported corrupt or missing frames"}
+FILE_LABELS = {"corrupted_frames": "decode reported corrupt, missing or concealment-smeared frames"}
 
 
 def judged(clips):
@@ -165,7 +165,7 @@ def score_file(name: str, path: Path, truth: dict, config) -> dict:
     d = analysis.decode
     return {"file": name, "verdict": verdict, "verdict_frames": frames, "clips": spans, "cuts": cuts,
             "transitions": transitions, "starts": starts, "why": ("whole file judged: " if whole else "") + why(spans),
-            "corrupt": bool(d.get("corrupt") or d.get("missing") or d.get("decode_errors")),
+            "corrupt": bool(d.get("corrupt") or d.get("missing") or d.get("decode_errors") or d.get("smeared")),
             "seconds": time.perf_counter() - t0}
 
 

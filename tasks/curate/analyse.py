@@ -100,7 +100,8 @@ def analyse_video(path: Path, sha256: str, config: CurateConfig = CurateConfig()
     result.decode = {"frames": report.frames, "unreferenced": report.unreferenced,
                      "corrupt": report.corrupt, "missing": report.missing,
                      "decode_errors": report.decode_errors, "truncated": report.truncated,
-                     "problems": report.problems[:20]}
+                     "problems": report.problems[:20],
+                     "smeared": len(report.smeared), "smeared_frames": report.smeared[:20]}
     result.seconds = time.perf_counter() - t0
     return result
 

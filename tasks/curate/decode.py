@@ -109,6 +109,7 @@ class DecodeReport:
     unreferenced: int = 0  # frames not decoded on purpose (``skip_unreferenced``)
     truncated: bool = False  # the demuxer stopped on an error before the end
     problems: list[str] = field(default_factory=list)
+    smeared: list[int] = field(default_factory=list)  # frames decoded but smeared by concealment (scenes)
 
     @property
     def skipped(self) -> int:

@@ -24,6 +24,9 @@ neither dark picture nor flat texture):
   frozen (a decoder holding a broken frame, a stalled capture): real footage whose camera or
   scene moves that much between frames never repeats itself exactly, while a fixed camera on
   a quiet scene (a few grey levels per frame) may.
+- ``smeared_frames``: frames a decoder patched over a lost slice by stretching rows into
+  vertical streaks (``tasks/curate/smear.py``); the decoder does not flag them, so each
+  frame is measured. One is enough to reject the clip as ``smeared``: it shows no scene.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ from tasks.curate.filters import (
     percentiles_of_histogram,
     sample_indices,
 )
+from tasks.curate.smear import SMEAR_MIN, smear_fraction
 from tasks.curate.video_type import looks_drawn
 
 
@@ -137,10 +141,11 @@ def temporal_noise(a: np.ndarray, b: np.ndarray, quantile: float = 25.0) -> floa
     return float(np.sqrt(np.pi / 2) / (6.0 * np.sqrt(2.0)) * np.percentile(blocks[usable], quantile))
 
 
-def frozen_run(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> tuple[float, float]:
+def frozen_run(frames: np.ndarray, times: np.ndarray, config: QualityConfig,
+               greys: list[np.ndarray] | None = None) -> tuple[float, float]:
     """(longest run of identical consecutive frames in s, median grey change per frame outside
     such runs) of T x h x w x 3 uint8 RGB frames at times T seconds."""
-    greys = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
+    greys = greys if greys is not None else [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
     change = np.array([cv2.absdiff(a, b).mean() for a, b in zip(greys[:-1], greys[1:])])
     same = change < config.frozen_change
     longest, start = 0.0, None
@@ -194,7 +199,9 @@ def judge(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> Verdi
         "palette": float(np.median([palette_size(f) for f in picked[:: max(1, len(picked) // 3)]])),
         "luma_change": moving,
     }
-    scores["frozen_s"], scores["frozen_motion"] = frozen_run(frames, times, config)
+    every = [cv2.cvtColor(f, cv2.COLOR_RGB2GRAY) for f in frames]
+    scores["frozen_s"], scores["frozen_motion"] = frozen_run(frames, times, config, every)
+    scores["smeared_frames"] = float(sum(smear_fraction(g) >= SMEAR_MIN for g in every))
     # A drawn page (slides, cartoons, bars) has a chosen palette, not an exposure: a white
     # slide is not an overexposed shot. Only footage with a real palette is judged for it.
     # Drawn is the video-type filter's call (its default rules, a few samples), so a white
@@ -208,9 +215,11 @@ def judge(frames: np.ndarray, times: np.ndarray, config: QualityConfig) -> Verdi
     # hold its mean down): much of it clipped white while the picture moves is overexposure
     # whatever its palette, while a still checkerboard with as much white is not.
     blown = scores["clip_high"] >= config.overexposed_clip and moving >= config.moving_min
-    reason = None
+    reason = "smeared" if scores["smeared_frames"] else None
     washed = scores["luma_p01"] >= config.washed_p01 and scores["luma_mean"] >= config.washed_mean
-    if blown or ((scores["luma_mean"] >= config.overexposed_mean or washed) and footage()):
+    if reason:
+        pass
+    elif blown or ((scores["luma_mean"] >= config.overexposed_mean or washed) and footage()):
         reason = "overexposed"
     elif scores["luma_p99"] <= config.underexposed_p99 and footage():
         reason = "underexposed"

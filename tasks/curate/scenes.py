@@ -51,8 +51,20 @@ rows and columns darker than ``BAR_DARK`` in every frame seen so far, less the r
 bar's edge), since bars shared by both frames make any two pictures correlate. Fast motion on
 both sides of a cut raises the neighbours' scores and so lowers the ratio (sintel.mp4 76 and
 118: ratio 2-3, correlation 0.05-0.28 inside the bars); a weak peak within one view (an
-exposure or keyframe quality pop, a car crossing: 0.46 and up) stays no cut. Confirmed peaks
-keep the detector's minimum gap to its cuts and pass the same checks as its cuts.
+exposure or keyframe quality pop: 0.9 and up) stays no cut. Two pictures of alike layout
+(dark figures on snow either side of sintel.mp4 96: 0.68) are told apart by their edges: a
+peak under ``cut_related`` (0.7) whose edge maps (gradient magnitude) correlate under
+``cut_unrelated_edges`` (0.5; sintel 96: 0.42) is a cut too. Confirmed peaks keep the
+detector's minimum gap to its cuts and pass the same checks as its cuts; for them the view
+that comes back may be any of the ``cut_enter_s`` (1/8 s) before the peak, since a car
+crossing the lens can fill both frames either side of it (caminandes.mp4 211). View checks
+are made inside the bars.
+
+A decoder that loses a slice conceals it by stretching rows into vertical streaks
+(``tasks/curate/smear.py``) and often holds that picture until the next intra frame. Neither
+the smeared frame nor the change where the picture comes back, right after it or after the
+held copies of it, is a cut (armwrestle.mp4: smear at 229, held 231-267, back at 268); the
+smeared frames are listed in the decode report and reject their clip (quality ``smeared``).
 
 A source shorter than the detector's window (``1 + 2 adaptive_window`` frames, e.g. slides
 one frame each) never has a frame judged by it: each pair of its frames is a cut where their
@@ -86,6 +98,7 @@ from tasks.curate.decode import (AnalysisConfig, AnalysisFrame, DecodeError, Dec
                                  analysis_frames, probe)
 from tasks.curate.detectors import RgbAdaptiveDetector, RgbContentDetector
 from tasks.curate.filters import picture_box
+from tasks.curate.smear import SMEAR_MIN, smear_fraction
 
 MICROSECOND = Fraction(1, 1_000_000)
 THUMB_WIDTH = 64
@@ -93,6 +106,7 @@ MAX_FILL = 2  # undecoded frames in a row that get interpolated rows (see SceneS
 MAX_REFILL = 16  # longest run of frames decoded on demand: H.264 allows at most 16 B-frames in a row
 THUMB_BLUR = 2.0  # px of Gaussian blur on thumbnails: camera motion must not read as new content
 Span = tuple[int, int, str]  # (start, end exclusive, kind) in frame positions
+HELD_STEP = 0.5  # mean grey change (blurred thumbnail) under which a decoded frame repeats the one before
 PAN_SHIFT = 3  # px of thumbnail shift (of 64) from which a view matched across a cut has moved: a pan
 FADE_JUMP = 0.6  # share of a fade side's luma rise taken in one step that makes the side a hard cut
 
@@ -124,9 +138,13 @@ class SceneConfig(BaseModel):
     cut_left_view: float = Field(0.5, le=1, description="best-shift correlation across a cut below which the view left")
     cut_same_view: float = Field(0.9, le=1, description="best-shift correlation of the view come back after a cut")
     cut_return_s: float = Field(0.33, ge=0, description="how long after a cut the view before may come back")
+    cut_enter_s: float = Field(0.125, ge=0, description="how long before a cut the view that comes back may be seen")
     dissolve_same_view: float = Field(0.5, le=1, description="correlation of the ends, best shift, of one view")
     cut_weak_ratio: float = Field(2.0, gt=0, description="adaptive ratio from which a peak may be confirmed as a cut")
     cut_unrelated: float = Field(0.35, le=1, description="picture correlation, best shift, that confirms a weak peak")
+    cut_unrelated_edges: float = Field(0.5, le=1, description="edge-map correlation, best shift, that confirms a "
+                                       "weak peak whose picture correlation is under cut_related")
+    cut_related: float = Field(0.7, le=1, description="picture correlation from which a weak peak is one view")
 
 
 SpanKind = Literal["scene", "too_short", "transition"]
@@ -321,6 +339,13 @@ def _same_view(p: np.ndarray, q: np.ndarray) -> float:
     return _best_shift(p, q)[0]
 
 
+def _edges(thumb: np.ndarray) -> np.ndarray:
+    """Gradient magnitude of an unblurred grey thumbnail, blurred by 1 px: where its edges are."""
+    gx = cv2.Sobel(thumb, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(thumb, cv2.CV_32F, 0, 1, ksize=3)
+    return cv2.GaussianBlur(cv2.magnitude(gx, gy), (0, 0), 1.0)
+
+
 def change_gap(max_len: int) -> int:
     """k of the dissolve finder's change across 2k frames, for transitions up to ``max_len``."""
     return max(2, (max_len // 2 + 2) // 3)
@@ -413,9 +438,9 @@ def find_transitions(luma: np.ndarray, sharp: np.ndarray, thumbs: np.ndarray, ma
     return sorted(merged + [c for c in cuts if not any(a < c[0] < b for a, b, _ in merged)])
 
 
-def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray, np.ndarray]:
+def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray, np.ndarray, float]:
     """(mean luma, blurred 64-px grey thumbnail, mean squared gradient, half-size RGB frame,
-    unblurred 64-px grey thumbnail) of an RGB analysis frame. Frames wider than 160 px are measured at half size: the same
+    unblurred 64-px grey thumbnail, concealment smear share) of an RGB analysis frame. Frames wider than 160 px are measured at half size: the same
     cuts and transitions on our corpus and on bikes.mp4, at a quarter of the cost."""
     h, w = image.shape[:2]
     small = image if w <= 160 else cv2.resize(image, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
@@ -427,7 +452,7 @@ def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray, 
     gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
     sharp = float(cv2.mean(gx * gx + gy * gy)[0])
     # Blurred so that sub-pixel camera motion does not read as a change of content.
-    return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, small, thumb
+    return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, small, thumb, smear_fraction(grey)
 
 
 BAR_DARK = 24  # grey level under which a border row or column of every frame is a bar (filters.active_box)
@@ -513,6 +538,10 @@ class SceneSplitter:
         self.pushed = 0  # rows
         self.settled = -16  # rows at the previous settle, less one
         self.last: tuple | None = None  # (index, time, luma, thumb, sharp) of the last decoded frame
+        self.smeared: list[int] = []  # source frame numbers of concealment-smeared frames (tasks/curate/smear.py)
+        self.last_smear = -1  # position of the last smeared frame
+        self.held_from = 0  # position where the current run of unchanged decoded frames starts
+        self.recovered: set[int] = set()  # positions where a smeared or held-after-smear picture ends
 
     def push(self, frame: AnalysisFrame) -> list[Scene]:
         """Take the next frame (in decoded order); return the spans that became final.
@@ -545,7 +574,8 @@ class SceneSplitter:
         return out + self._push(frame, features)
 
     def _push(self, frame: AnalysisFrame, features) -> list[Scene]:
-        luma, thumb, sharp, small, raw = features
+        luma, thumb, sharp, small, raw, smear = features
+        held = self.last is not None and float(np.abs(thumb - self.last[3]).mean()) < HELD_STEP
         if self.last is not None and 1 < frame.index - self.last[0] <= MAX_FILL + 1:
             i0, t0, l0, th0, s0, r0 = self.last
             steps = frame.index - i0
@@ -556,6 +586,7 @@ class SceneSplitter:
         gap = frame.index - self.last[0] if self.last is not None else 1
         self.last = (frame.index, frame.time, luma, thumb, sharp, raw)
         pos = self._row(frame.index, frame.time, luma, thumb, sharp, frame.image, decoded=True, raw=raw)
+        self._corruption(pos, frame.index, smear, held)
         self.peak = raw.copy() if self.peak is None or self.peak.shape != raw.shape else np.maximum(self.peak, raw)
         if pos < 2 * self.config.adaptive_window and pos == len(self.head):
             self.head.append(raw)
@@ -574,6 +605,22 @@ class SceneSplitter:
             return []
         self.settled = pos
         return self._settle(pos + 1 - self.lag)
+
+    def _corruption(self, pos: int, index: int, smear: float, held: bool) -> None:
+        """Mark where a decoder's concealment ends. A smeared frame (``smear.SMEAR_MIN``) is the
+        stream breaking, not a new shot, and decoders often hold the broken picture until the
+        next intra frame: the change where the picture comes back, right after the smear or
+        after the held copies of it (each changing less than ``HELD_STEP`` from the one before),
+        is the stream recovering, not a cut. Neither marks a cut (armwrestle.mp4: smear at 229,
+        held 231-267, the picture back at 268)."""
+        if smear >= SMEAR_MIN:
+            self.smeared.append(index)
+            self.last_smear = pos
+            self.recovered.add(pos)
+        elif not held and self.last_smear >= max(0, self.held_from - 2):
+            self.recovered.add(pos)
+        if not held:
+            self.held_from = pos
 
     def _row(self, index: int, time: float, luma: float, thumb: np.ndarray, sharp: float,
              image: np.ndarray | None, decoded: bool, raw: np.ndarray | None = None) -> int:
@@ -627,7 +674,7 @@ class SceneSplitter:
             if not any(abs(c - k) < gap for k in found) and self._unrelated(c):
                 found = sorted(found + [c])
         cuts = [(c, c, "cut") for c in found if not any(a - near <= c < b + near for a, b, _ in spans)
-                and not self._view_returns(c, final)]
+                and c not in self.recovered and not self._view_returns(c, final)]
         return sorted(s for s in spans + cuts if s[0] > self.open or (s[2] != "cut" and s[1] > self.open))
 
     def _unrelated(self, cut: int) -> bool:
@@ -639,27 +686,34 @@ class SceneSplitter:
             if cut - 1 < self.base:
                 return False
             top, bottom, left, right = _picture_box(self.peak)
-            p, q = (cv2.GaussianBlur(np.ascontiguousarray(t[top:bottom, left:right]), (0, 0), THUMB_BLUR)
-                    for t in self.raw.view(cut - 1 - self.base)[:2])
-            self.weak_checks[cut] = _same_view(p, q) < self.config.cut_unrelated
+            p, q = (np.ascontiguousarray(t[top:bottom, left:right]) for t in self.raw.view(cut - 1 - self.base)[:2])
+            picture = _same_view(*(cv2.GaussianBlur(x, (0, 0), THUMB_BLUR) for x in (p, q)))
+            self.weak_checks[cut] = picture < self.config.cut_unrelated or (
+                picture < self.config.cut_related and _same_view(_edges(p), _edges(q)) < self.config.cut_unrelated_edges)
         return self.weak_checks[cut]
 
     def _view_returns(self, cut: int, final: bool) -> bool:
         """Whether the view before a detector cut leaves and comes back: the frame after the cut
         is unlike the frame before it (best-shift correlation < ``cut_left_view``), but one of
-        the next ``cut_return_s`` is the same view again (>= ``cut_same_view``). Something
-        passed right in front of the lens (a car, a hand): the same shot goes on."""
+        the next ``cut_return_s`` is the same view again (>= ``cut_same_view``) as that frame or
+        one of the ``cut_enter_s`` before it (the thing may already be entering the frame before
+        the peak; the frame after a weak peak confirmed by ``_unrelated`` has left the view). Something passed right in front of the lens (a car, a hand): the same shot
+        goes on."""
         if cut in self.cut_checks:
             return self.cut_checks[cut]
         last = cut + max(1, round(self.config.cut_return_s * self.fps))
         if cut - 1 < self.base or (last >= self.pushed and not final):
             return False  # (not yet decided: a cut is only used max_len frames after it)
-        thumbs = self.thumbs.view(cut - 1 - self.base)
-        before = thumbs[0]
-        views = [_same_view(before, thumbs[j]) for j in range(1, min(last, self.pushed - 1) - cut + 2)]
-        across, shift = _best_shift(before, thumbs[1])
-        self.cut_checks[cut] = ((views[0] < self.config.cut_left_view and max(views) >= self.config.cut_same_view)
-                                or (across >= self.config.cut_same_view and shift >= PAN_SHIFT))
+        back = min(round(self.config.cut_enter_s * self.fps), cut - 1 - self.base)
+        top, bottom, left, right = _picture_box(self.peak)  # bars shared by both make any two alike
+        thumbs = self.thumbs.view(cut - 1 - back - self.base)[:, top:bottom, left:right]
+        before, after = thumbs[back], range(back + 1, min(last, self.pushed - 1) - cut + back + 2)
+        # A weak peak already had unrelated pictures either side (``_unrelated``).
+        left = cut in self.weak_checks or _same_view(before, thumbs[back + 1]) < self.config.cut_left_view
+        returns = left and any(_same_view(thumbs[i], thumbs[j]) >= self.config.cut_same_view
+                               for i in range(back, -1, -1) for j in after)
+        across, shift = _best_shift(before, thumbs[back + 1])
+        self.cut_checks[cut] = returns or (across >= self.config.cut_same_view and shift >= PAN_SHIFT)
         return self.cut_checks[cut]
 
     def _settle(self, frontier: int, final: bool = False) -> list[Scene]:
@@ -751,15 +805,20 @@ class SceneSplitter:
         self.base += drop
         self.cuts = [c for c in self.cuts if c >= self.base]
         self.weak = [c for c in self.weak if c >= self.base]
+        self.recovered = {c for c in self.recovered if c >= self.base}
         self.fits = {key: fit for key, fit in self.fits.items() if key[0] > self.base}
 
 
 def split_scenes(frames: Iterable[AnalysisFrame], fps: float, config: SceneConfig = SceneConfig(),
                  keep_frames: bool = True,
-                 exact: Callable[[list[int]], list[AnalysisFrame]] | None = None) -> Iterator[Scene]:
+                 exact: Callable[[list[int]], list[AnalysisFrame]] | None = None,
+                 report: DecodeReport | None = None) -> Iterator[Scene]:
     """Spans in order (scenes, too_short and transition spans) from a stream of frames;
-    ``exact`` decodes left-out frames on demand (see ``SceneSplitter``)."""
+    ``exact`` decodes left-out frames on demand (see ``SceneSplitter``); ``report.smeared``
+    gets the frames found smeared by concealment."""
     splitter = SceneSplitter(fps, config, keep_frames, exact)
+    if report is not None:
+        report.smeared = splitter.smeared
     for frame in frames:
         yield from splitter.push(frame)
     yield from splitter.finish()
@@ -772,7 +831,7 @@ def scenes_of(path: Path | str, config: SceneConfig = SceneConfig(), analysis: A
     info = info or probe(path)
     frames = analysis_frames(path, analysis, report, info)
     if not analysis.skip_unreferenced:
-        yield from split_scenes(frames, info.fps, config, keep_frames)
+        yield from split_scenes(frames, info.fps, config, keep_frames, report=report)
         return
     exact = ExactFrames(path, analysis, info)
 
@@ -784,7 +843,7 @@ def scenes_of(path: Path | str, config: SceneConfig = SceneConfig(), analysis: A
         return [AnalysisFrame(i, exact.time(i), got[i]) for i in sorted(got)]
 
     try:
-        yield from split_scenes(frames, info.fps, config, keep_frames, refill)
+        yield from split_scenes(frames, info.fps, config, keep_frames, refill, report)
     finally:
         exact.close()
 

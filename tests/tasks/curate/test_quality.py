@@ -190,6 +190,10 @@ def test_real_decoder_freeze_is_found():
         pytest.skip("../shared/data is absent")
     decoded = [f for f in analysis_frames(path) if 200 <= f.index < 280]
     frames, times = np.stack([f.image for f in decoded]), np.array([f.time for f in decoded])
-    assert judge(frames, times, QualityConfig()).reason == "frozen"  # frames 231-267 repeat one smear
+    verdict = judge(frames, times, QualityConfig())
+    assert verdict.reason == "smeared" and verdict.scores["smeared_frames"] == 1  # the concealment at 229 ...
+    assert verdict.scores["frozen_s"] >= 1.0  # ... then frames 231-267 repeat it
+    after = [k for k, f in enumerate(decoded) if f.index >= 231]
+    assert judge(frames[after], times[after], QualityConfig()).reason == "frozen"
     hikers = [f for f in analysis_frames(SHARED_DATA / "videos-dev" / "hikers.mp4")]
     assert judge(np.stack([f.image for f in hikers]), np.array([f.time for f in hikers]), QualityConfig()).keep

@@ -58,3 +58,14 @@ def test_weak_peaks_between_unrelated_pictures_are_cuts():
     assert {58, 76, 118, 140, 176, 209} <= set(fast)
     assert all(any(abs(c - t) <= 2 for t in truth) for c in fast)
     assert _cuts("caminandes.mp4") == []
+
+
+def test_a_weak_peak_between_alike_layouts_is_a_cut_by_its_edges():
+    # sintel.mp4 96: one snowy fight cut to another, dark figures on a white ground either
+    # side (picture correlation 0.68 inside the bars) but no edge in common (0.42).
+    assert 96 in _cuts("sintel.mp4")
+
+
+def test_the_stream_recovering_after_a_concealment_is_not_a_cut():
+    # armwrestle.mp4: concealment smear at 229, held to 267, the picture back at 268.
+    assert _cuts("armwrestle.mp4") == []

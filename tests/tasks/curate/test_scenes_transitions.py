@@ -180,3 +180,19 @@ def test_best_shift_equals_the_loop_over_every_shift():
         assert abs(got[0] - want[0]) < 1e-5 and got[1] == want[1]
     black = np.zeros((36, 64), np.float32)
     assert _best_shift(black, black) == _best_shift_by_loop(black, black, MOTION_SHIFT)
+
+
+def test_the_picture_coming_back_after_a_concealment_smear_is_not_a_cut():
+    # A pan; at 60 the decoder conceals a lost slice (rows stretched down into streaks) and
+    # holds that broken picture until 90, when the next intra frame brings the pan back
+    # (armwrestle.mp4 229-268). The stream recovered: no cut, at 60 or at 90.
+    frames = [np.clip(f, 0, 255).astype(np.uint8) for f, _ in zip(shot(1, 0.9), range(150))]
+    smear = frames[59].copy()
+    detail = np.random.default_rng(0).normal(0, 12, (W, 1))  # the stretched row's fine detail
+    smear[H // 3:] = np.clip(smear[H // 3 - 1] + detail, 0, 255).astype(np.uint8)
+    broken = frames[:60] + [smear] * 30 + frames[90:]
+    assert [s for s in spans_of(broken) if s[2] == "cut"] == []
+    # The same held picture without the smear (a frozen shot, then another shot) is a cut.
+    other = [np.clip(f, 0, 255).astype(np.uint8) for f, _ in zip(shot(5, 1.2), range(60))]
+    frozen = frames[:60] + [frames[59]] * 30 + other
+    assert [s[0] for s in spans_of(frozen)] == [90]
