@@ -127,7 +127,7 @@ def _checkpoint_or_exit(resolve):
 
 
 def _world_model_or_exit(name: str | None) -> str:
-    from flows.lookup import world_model_folder
+    from tasks.lookup import world_model_folder
 
     return str(_checkpoint_or_exit(lambda warehouse, root: world_model_folder(warehouse, root, name)))
 
@@ -135,9 +135,10 @@ def _world_model_or_exit(name: str | None) -> str:
 def _tokenizer_or_exit(name: str, variant: str | None = "discrete") -> str:
     """The folder of a tokenizer checkpoint named by folder or id, its config checked (the flow
     loads the weights)."""
-    from flows.lookup import checkpoint_folder, tokenizer_condition
+    from tasks.lookup import checkpoint_folder
     from models.tokenizer import TokenizerConfig
     from tasks.checkpoint_files import CheckpointError, model_config, read_config
+    from warehouse.queries import tokenizer_condition
 
     what = f"{variant} tokenizer" if variant else "tokenizer"
     folder = _checkpoint_or_exit(lambda warehouse, root: checkpoint_folder(
@@ -154,7 +155,7 @@ def _tokenizer_or_exit(name: str, variant: str | None = "discrete") -> str:
 
 def _policies_or_exit(names: list[str], behaviour_cloning: bool = False) -> tuple[list[str], list]:
     """(names with ``bc:ID`` resolved to ``bc:FOLDER``, the policies they load)."""
-    from flows.lookup import policy_spec
+    from tasks.lookup import policy_spec
     from tasks.policy.specs import PolicySpecError, load_policy
 
     specs = [_checkpoint_or_exit(lambda warehouse, root, name=name: policy_spec(warehouse, root, name))
@@ -281,28 +282,28 @@ def audit(
 def _full_id(warehouse, table: str, column: str, given: str, what: str) -> str:
     """The one full id in ``table`` that starts with ``given`` (12+ hex digits), or ``given``
     itself when it is a full id, is not hex, or nothing starts with it (the audit then finds nothing)."""
-    from flows.lookup import is_hex_id
+    from tasks.lookup import is_hex_id
+    from warehouse.queries import ids_starting
 
     if not is_hex_id(given) or len(given) >= 64:
         return given
-    _, rows = warehouse.query(f"SELECT DISTINCT {column} FROM {table} WHERE {column} LIKE $p || '%' "
-                              f"ORDER BY 1 LIMIT 2", {"p": given})
-    if len(rows) > 1:
-        _fail(f"--{what} {given}: more than one {what} starts with it ({rows[0][0]}, {rows[1][0]}, ...)")
-    return rows[0][0] if rows else given
+    found = ids_starting(warehouse, table, column, given)
+    if len(found) > 1:
+        _fail(f"--{what} {given}: more than one {what} starts with it ({found[0]}, {found[1]}, ...)")
+    return found[0] if found else given
 
 
 @app.command()
 def summary() -> None:
     """Counts of every lineage table and the latest runs."""
+    from warehouse import queries
     from warehouse.store import Warehouse, WarehouseError
 
     try:
         with Warehouse(Settings().warehouse_path, read_only=True) as wh:
             counts = wh.counts()
-            cols, rows = wh.query(
-                "SELECT flow, status, count(*) AS runs, max(ended_at) AS last_ended FROM runs GROUP BY ALL ORDER BY flow")
-            kcols, krows = wh.query("SELECT kind, count(*) AS n, sum(bytes) AS bytes FROM artifacts GROUP BY kind ORDER BY kind")
+            cols, rows = queries.runs_by_flow(wh)
+            kcols, krows = queries.artifacts_by_kind(wh)
     except WarehouseError as exc:
         _refuse(exc)
     _print_rows(["table", "rows"], list(counts.items()), "table", title=f"lineage {Settings().warehouse_path}")
@@ -767,6 +768,7 @@ def verify(
     from schemas.errors import EXIT_ENVIRONMENT
     from tasks import integrity
     from warehouse import integrity as claims
+    from warehouse.queries import has_manifest
     from warehouse.store import Warehouse, WarehouseError
 
     if fmt not in ("table", "csv", "json"):
@@ -776,7 +778,7 @@ def verify(
         with Warehouse(settings.warehouse_path, read_only=True) as wh:
             if manifest is not None:
                 manifest = _full_id(wh, "manifests", "manifest_hash", manifest, "manifest")
-                if not wh.query("SELECT 1 FROM manifests WHERE manifest_hash = $m", {"m": manifest})[1]:
+                if not has_manifest(wh, manifest):
                     _fail(f"--manifest {manifest}: no such manifest in lineage")
             rows = [integrity.Recorded(*r) for r in claims.files(wh, manifest)]
     except WarehouseError as exc:

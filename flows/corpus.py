@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from typing import Annotated
 
 from prefect import flow, task
@@ -12,7 +11,6 @@ from flows.params import Seed
 from flows.recording import recorded_run
 from flows.report import markdown_table, publish
 from schemas.hashing import stable_id
-from schemas.records import LineageBatch, StageRunRecord
 from schemas.settings import Settings
 from tasks.corpus import generate
 
@@ -27,13 +25,10 @@ def corpus(minutes: Annotated[float, Field(gt=0, le=600)] = 1.0, seed: Seed = 0,
     settings = Settings()
     params = {"minutes": minutes, "seed": seed, "width": width, "height": height, "fps": fps}
     with recorded_run("corpus", settings, params=params) as run:
-        key = stable_id("corpus", *(f"{k}={v}" for k, v in sorted(params.items())))
-        t0 = time.perf_counter()
+        stage = run.stage("corpus", stable_id("corpus", *(f"{k}={v}" for k, v in sorted(params.items()))),
+                          manifest_hash=None)
         videos = generate_corpus(settings.data_root, seed=seed, minutes=minutes, width=width, height=height, fps=fps)
-        stage = StageRunRecord(stage_run_id=run.stage_run_id("corpus", key), run_id=run.run_id, stage="corpus",
-                               input_key=key, n_out=len(videos), seconds=round(time.perf_counter() - t0, 3),
-                               attrs=params)
-        run.write(LineageBatch(stage_runs=[stage]).extend(generate.corpus_lineage(videos, stage.stage_run_id, None, settings.data_root)))
+        stage.finish(0, len(videos), generate.corpus_lineage(videos, stage.id, None, settings.data_root), attrs=params)
         print(f"corpus seed {seed}: {len(videos)} videos, {minutes} min at {width}x{height}")
         publish("corpus", f"seed {seed}, {len(videos)} videos, {minutes} min at {width}x{height}",
                 markdown_table(("video", "ground truth"), [(v.video.name, v.truth.name) for v in videos]),

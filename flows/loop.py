@@ -8,7 +8,6 @@ the derived manifests' episodes)."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Annotated
 
@@ -18,23 +17,25 @@ from pydantic import Field
 
 from flows.curate import curate
 from flows.evaluate import evaluate
-from flows.lookup import verified_policy
-from flows.panels import resolve_grid
 from flows.params import Episodes, PanelEpisodes, Steps
 from flows.policy import train_policy
 from flows.recording import RunContext, recorded_run
-from flows.report import markdown_table, publish
+from flows.report import publish
 from flows.simulate import simulate
 from schemas import paths
-from schemas.hashing import content_hash, sha256_file, stable_id
+from schemas.hashing import content_hash, stable_id
 from schemas.manifest import ScenarioManifest, manifest_hash
-from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord, StageRunRecord
+from schemas.records import LineageBatch, MetricRecord
 from schemas.settings import Settings
 from tasks import loop as steps
 from tasks import manifests
+from tasks.lookup import verified_policy
+from tasks.panels.grid import resolve_grid
 from tasks.policy import bc
 from tasks.policy.features import FEATURES_VERSION
+from tasks.policy.lineage import checkpoint_lineage
 from tasks.policy.specs import load_policy
+from warehouse import queries
 
 STAGE = "post_train_policy"
 # A policy made in-flow when none is given: weak on purpose, so the loop has failures to fix.
@@ -81,41 +82,6 @@ def demonstrations(parent: ScenarioManifest, policy: bc.BCPolicy, derived: list[
     return steps.merge(parts)
 
 
-def record_derived(run: RunContext, parent_hash: str, derived: list[ScenarioManifest], files: list[Path],
-                   picked: list[tuple[str, float]], counts: list[int]) -> None:
-    batch = LineageBatch()
-    for m, path, (cell, rate), n in zip(derived, files, picked, counts):
-        batch.extend(manifests.lineage(m, str(path)))
-        batch.edges.append(EdgeRecord(parent_id=parent_hash, child_id=manifest_hash(m), relation=steps.RELATION_DERIVED))
-        batch.metrics.append(MetricRecord(subject_id=manifest_hash(m), name="loop_source_success_rate", value=rate,
-                                          manifest_hash=parent_hash, attrs={"cell": cell, "new_episodes": n}))
-    run.write(batch)
-
-
-def episode_ids(run: RunContext, digests: list[str]) -> list[str]:
-    _, rows = run.warehouse.query("SELECT artifact_id FROM artifacts WHERE kind = 'episode' AND list_contains($d, "
-                                  "manifest_hash) ORDER BY artifact_id", {"d": digests})
-    return [r[0] for r in rows]
-
-
-def checkpoint_lineage(run: RunContext, checkpoint_id: str, old_id: str, folder: Path, root: Path, key: str,
-                       episodes: list[str], history: list[dict], seconds: float, attrs: dict) -> LineageBatch:
-    weights = folder / bc.WEIGHTS_FILE
-    stage = StageRunRecord(stage_run_id=run.stage_run_id(STAGE, key), run_id=run.run_id, stage=STAGE, input_key=key,
-                           manifest_hash=run.manifest_hash, n_in=len(episodes), n_out=1, seconds=round(seconds, 3),
-                           attrs={"checkpoint_id": checkpoint_id, "from": old_id})
-    return LineageBatch(
-        stage_runs=[stage],
-        artifacts=[ArtifactRecord(artifact_id=checkpoint_id, kind="checkpoint", uri=weights.relative_to(root).as_posix(),
-                                  sha256=sha256_file(str(weights)), bytes=weights.stat().st_size,
-                                  manifest_hash=run.manifest_hash, stage_run_id=stage.stage_run_id,
-                                  attrs={"model": "bc-policy", **attrs})],
-        edges=[EdgeRecord(parent_id=old_id, child_id=checkpoint_id, relation=steps.RELATION_POSTTRAINED),
-               *(EdgeRecord(parent_id=e, child_id=checkpoint_id, relation="trained_on") for e in episodes)],
-        metrics=[MetricRecord(subject_id=checkpoint_id, name="post_train_loss", step=h["step"], value=h["loss"],
-                              stage_run_id=stage.stage_run_id, manifest_hash=run.manifest_hash) for h in history])
-
-
 def generate(derived: ScenarioManifest, path: Path, n: int, root: Path) -> dict:
     """New episodes of a derived manifest (the simulate flow), their camera videos curated."""
     simulated = simulate(str(path), episodes=n)
@@ -133,31 +99,26 @@ def post_train_policy(run: RunContext, parent: ScenarioManifest, old: bc.BCPolic
                     *(f"{d}:{n}" for d, n in zip(digests, counts)))
     checkpoint_id = stable_id("checkpoint", key)
     folder = paths.resolve(root, paths.CHECKPOINT_DIR, model="bc-policy", checkpoint_id=checkpoint_id)
-    if run.pending(STAGE, [key]) or not (folder / bc.WEIGHTS_FILE).exists():
-        t0 = time.perf_counter()
+    stage = run.stage(STAGE, key, [folder / bc.WEIGHTS_FILE])
+    if not stage.done:
         demos = demonstrations(parent, old, derived, counts)
         seeds = {d: [m.seed + i for i in range(n)] for d, m, n in zip(digests, derived, counts)}
         history = tune(old, demos, config, folder, parent,
                        {"checkpoint_id": checkpoint_id, "posttrained_from": old_id, "derived_seeds": seeds,
                         "demonstrations": int(len(demos.obs))})
-        run.write(checkpoint_lineage(run, checkpoint_id, old_id, folder, root, key, episode_ids(run, digests),
-                                     history, time.perf_counter() - t0,
-                                     {"steps": post_steps, "posttrained_from": old_id, "derived": digests}))
+        episodes = queries.episode_ids(run.warehouse, digests)
+        stage.finish(len(episodes), 1, checkpoint_lineage(
+            checkpoint_id, folder / bc.WEIGHTS_FILE, root, stage.id, run.manifest_hash,
+            {"steps": post_steps, "posttrained_from": old_id, "derived": digests},
+            [(old_id, steps.RELATION_POSTTRAINED), *((e, "trained_on") for e in episodes)], "post_train_loss",
+            history), attrs={"checkpoint_id": checkpoint_id, "from": old_id})
     return checkpoint_id, folder
-
-
-def _fmt(value: float | None) -> str:
-    return "-" if value is None else f"{value:.2f}"
 
 
 def summarise(table: list[dict], derived: list[ScenarioManifest], counts: list[int], picked: list[tuple[str, float]],
               title: str) -> str:
     """The `loop-summary` artifact: success per cell before and after, and the derived manifests."""
-    text = markdown_table(("cell", "episodes", "before", "after", "targeted"),
-                          [(r["cell"], r["episodes"], _fmt(r["before"]), _fmt(r["after"]), "yes" if r["targeted"] else "")
-                           for r in table])
-    made = "\n".join(f"- {m.name} ({manifest_hash(m)[:12]}): {n} new episodes, from cell {cell} at {_fmt(rate)}"
-                     for m, n, (cell, rate) in zip(derived, counts, picked))
+    text, made = steps.summary_text(table, derived, counts, picked)
     publish("loop", title, f"{text}\n\nDerived manifests:\n{made}", "success per stressor cell before and after")
     return text
 
@@ -189,7 +150,7 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
         counts = steps.episode_counts([rate for _, rate in picked], new_episodes)
         derived = steps.derive_manifests(parent, chosen, [cell for cell, _ in picked])
         files = write_derived(derived, root)
-        record_derived(run, run.manifest_hash, derived, files, picked, counts)
+        run.write(steps.derived_lineage(run.manifest_hash, derived, files, picked, counts))
 
         made = [generate(m, path, n, root) for m, path, n in zip(derived, files, counts)]
         checkpoint_id, folder = post_train_policy(run, parent, old, old_id, derived, counts, post_steps, root)

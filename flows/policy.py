@@ -7,7 +7,6 @@ onwards, so neither overlaps the seeds panels use by default (seed, seed+1, ...)
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 from typing import Annotated
 
@@ -19,13 +18,14 @@ from flows.params import Episodes, Seed, Steps
 from flows.recording import recorded_run
 from flows.report import markdown_table, publish
 from schemas import paths
-from schemas.hashing import content_hash, sha256_file, stable_id
-from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord, StageRunRecord
+from schemas.hashing import content_hash, stable_id
+from schemas.records import MetricRecord
 from schemas.settings import Settings
 from tasks import manifests
 from tasks.checkpoint_files import CONFIG_FILE
 from tasks.policy import bc
 from tasks.policy.features import FEATURES_VERSION
+from tasks.policy.lineage import checkpoint_lineage
 
 STAGE = "train_policy"
 TRAIN_OFFSET, HOLDOUT_OFFSET = 1000, 2000
@@ -60,37 +60,23 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
         checkpoint_id = stable_id("checkpoint", key)
         folder = paths.resolve(root, paths.CHECKPOINT_DIR, model="bc-policy", checkpoint_id=checkpoint_id)
         history, rate, outcomes = [], None, []
-        if run.pending(STAGE, [key]) or not (folder / bc.WEIGHTS_FILE).exists():
-            t0 = time.perf_counter()
+        stage = run.stage(STAGE, key, [folder / bc.WEIGHTS_FILE])
+        if not stage.done:
             demos = collect(scenario, train_seeds)
             model, history = train(demos, config, folder, scenario,
                                    {"checkpoint_id": checkpoint_id, "train_seeds": train_seeds,
                                     "demonstrations": int(len(demos.obs)), "successes": sum(demos.successes)})
             policy = bc.BCPolicy.from_checkpoint(folder)
             rate, outcomes = held_out(scenario, policy, test_seeds) if test_seeds else (None, [])
-            stage = StageRunRecord(stage_run_id=run.stage_run_id(STAGE, key), run_id=run.run_id, stage=STAGE,
-                                   input_key=key, manifest_hash=run.manifest_hash, n_in=episodes, n_out=1,
-                                   seconds=round(time.perf_counter() - t0, 3),
-                                   attrs={"checkpoint_id": checkpoint_id, "steps": steps})
-            weights = folder / bc.WEIGHTS_FILE
-            attrs = {"model": "bc-policy", "preset": preset_name, "steps": steps, "train_seeds": train_seeds,
-                     "held_out_seeds": test_seeds, "held_out_success_rate": rate,
-                     "config": (folder / CONFIG_FILE).relative_to(root).as_posix()}
-            batch = LineageBatch(
-                stage_runs=[stage],
-                artifacts=[ArtifactRecord(artifact_id=checkpoint_id, kind="checkpoint",
-                                          uri=weights.relative_to(root).as_posix(), sha256=sha256_file(str(weights)),
-                                          bytes=weights.stat().st_size, manifest_hash=run.manifest_hash,
-                                          stage_run_id=stage.stage_run_id, attrs=attrs)],
-                edges=[EdgeRecord(parent_id=run.manifest_hash, child_id=checkpoint_id, relation="trained_on")],
-                metrics=[MetricRecord(subject_id=checkpoint_id, name="train_loss", step=h["step"], value=h["loss"],
-                                      stage_run_id=stage.stage_run_id, manifest_hash=run.manifest_hash)
-                         for h in history])
+            attrs = {"preset": preset_name, "steps": steps, "train_seeds": train_seeds, "held_out_seeds": test_seeds,
+                     "held_out_success_rate": rate, "config": (folder / CONFIG_FILE).relative_to(root).as_posix()}
+            batch = checkpoint_lineage(checkpoint_id, folder / bc.WEIGHTS_FILE, root, stage.id, run.manifest_hash,
+                                       attrs, [(run.manifest_hash, "trained_on")], "train_loss", history)
             if rate is not None:
                 batch.metrics.append(MetricRecord(subject_id=checkpoint_id, name="held_out_success_rate", value=rate,
-                                                  stage_run_id=stage.stage_run_id, manifest_hash=run.manifest_hash,
+                                                  stage_run_id=stage.id, manifest_hash=run.manifest_hash,
                                                   attrs={"seeds": test_seeds}))
-            run.write(batch)
+            stage.finish(episodes, 1, batch, attrs={"checkpoint_id": checkpoint_id, "steps": steps})
         rows = [(s, "success" if ok else "failure", why) for s, ok, why in outcomes]
         publish("train-policy", f"checkpoint {checkpoint_id}" + ("" if rate is None else f", held-out success {rate:.2f}"),
                 markdown_table(("held-out seed", "outcome", "reason"), rows), "behaviour-cloning policy and its held-out success")

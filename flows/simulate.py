@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from contextlib import suppress
 from pathlib import Path
 
@@ -14,7 +13,6 @@ from flows.recording import recorded_run
 from flows.report import markdown_table, progress, publish
 from flows.runners import task_runner
 from schemas.hashing import stable_id
-from schemas.records import LineageBatch, StageRunRecord
 from schemas.settings import Settings
 from tasks import manifests
 from tasks.sim import episode, files
@@ -37,23 +35,18 @@ def simulate(manifest: str, episodes: Episodes = 2) -> dict:
     with recorded_run("simulate", settings, scenario, source_uri=manifest,
                       params={"manifest": manifest, "episodes": episodes}) as run:
         keys = {stable_id("episode", run.manifest_hash, str(i)): i for i in range(episodes)}
-        todo = set(run.pending("simulate", list(keys)))
-        by_future = {simulate_episode.submit(scenario, run.manifest_hash, i, settings.data_root):
-                     (key, time.perf_counter()) for key, i in keys.items() if key in todo}
+        by_future = {simulate_episode.submit(scenario, run.manifest_hash, keys[key], settings.data_root): stage
+                     for key, stage in run.stages("simulate", keys).items() if not stage.done}
         outcomes = {}
 
         def record(future) -> None:
             """One finished episode's lineage, written as soon as it is done: an interrupted run
             keeps every episode it finished (issue 26)."""
-            key, t0 = by_future.pop(future)
+            stage = by_future.pop(future)
             written, success, reason = future.result()
-            stage = StageRunRecord(stage_run_id=run.stage_run_id("simulate", key), run_id=run.run_id,
-                                   stage="simulate", input_key=key, manifest_hash=run.manifest_hash,
-                                   n_in=1, n_out=1, seconds=round(time.perf_counter() - t0, 3),
-                                   attrs={"index": keys[key], "success": success, "reason": reason})
-            run.write(LineageBatch(stage_runs=[stage]).extend(
-                files.episode_lineage(written, run.manifest_hash, stage.stage_run_id, settings.data_root)))
-            outcomes[keys[key]] = (success, reason)
+            stage.finish(1, 1, files.episode_lineage(written, run.manifest_hash, stage.id, settings.data_root),
+                         attrs={"index": keys[stage.key], "success": success, "reason": reason})
+            outcomes[keys[stage.key]] = (success, reason)
 
         with progress(len(by_future), f"simulate {scenario.name}") as bar:
             try:

@@ -12,7 +12,6 @@ import torch
 from prefect import flow, task
 from pydantic import Field
 
-from flows.lookup import verified_file
 from flows.params import Batch, Seed, Side, Steps, Weight
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table
@@ -20,11 +19,13 @@ from flows.report import publish as publish_report
 from models.tokenizer import VideoTokenizer, preset
 from schemas import paths
 from schemas.hashing import content_hash, stable_id
-from schemas.records import EdgeRecord, LineageBatch, StageRunRecord
+from schemas.records import EdgeRecord
 from schemas.settings import Settings
 from tasks import integrity
+from tasks.lookup import verified_file
 from tasks.tokenize import data, tokens
 from tasks.tokenize.train import TrainConfig, psnr, to_tensor, train_tokenizer
+from tasks.world.inputs import tokenizer_folder
 
 STAGE_TRAIN, STAGE_ENCODE = "train_tokenizer", "encode_tokens"
 
@@ -61,9 +62,7 @@ def decode_shard(path: Path, root: Path, uri: str, size: int, max_frames: int) -
 def init_checkpoint(run: RunContext, init: str, preset_name: str) -> tuple[Path, str]:
     """(folder, artifact id) of the tokenizer checkpoint to continue from (a folder or an id in
     lineage, as `worldline train --tokenizer` takes them); it must hold the same preset."""
-    from flows.train import tokenizer_folder
-
-    folder, checkpoint_id = tokenizer_folder(run, init, variant=None)
+    folder, checkpoint_id = tokenizer_folder(run.warehouse, run.settings.data_root, init, variant=None)
     found = tokens.load_checkpoint(folder).config
     if found != preset(preset_name):
         raise ValueError(f"--init {folder}: holds tokenizer {found.name!r}, not preset {preset_name!r} "
@@ -108,12 +107,6 @@ def encode_shard(folder: Path, clips: list[data.Clip], target: Path, max_frames:
     return digest, size, len(rows), (sum(scores) / len(scores) if scores else None)
 
 
-def _stage(run: RunContext, stage: str, key: str, n_in: int, n_out: int, t0: float, mh: str | None, **attrs):
-    return StageRunRecord(stage_run_id=run.stage_run_id(stage, key), run_id=run.run_id, stage=stage, input_key=key,
-                          manifest_hash=mh, n_in=n_in, n_out=n_out, seconds=round(time.perf_counter() - t0, 3),
-                          attrs=attrs)
-
-
 @flow(name="tokenize", log_prints=True)
 def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200, size: Side = 64,
              batch_size: Batch = 4, seed: Seed = 0, max_encode_frames: Annotated[int, Field(ge=1)] = 129,
@@ -146,38 +139,38 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
         for uri in sorted(clips):
             clips[uri] = [c for c in clips[uri] if not (c.clip_id in seen or seen.add(c.clip_id))]
 
-        t0 = time.perf_counter()
         key = stable_id(STAGE_TRAIN, content_hash(model_config), content_hash(config), *sorted(s for _, _, s, _ in known),
                         *([f"init:{init_id}"] if init_id else []))
         checkpoint_id = stable_id("checkpoint", key)
         folder = paths.resolve(root, paths.CHECKPOINT_DIR, model=model_config.name, checkpoint_id=checkpoint_id)
         all_clips = [c for uri in sorted(clips) for c in clips[uri]]
         history: list[dict] = []
-        if run.pending(STAGE_TRAIN, [key]) or not (folder / tokens.WEIGHTS_FILE).exists():
+        stage = run.stage(STAGE_TRAIN, key, [folder / tokens.WEIGHTS_FILE], manifest_hash=mh)
+        if not stage.done:
             history, params = train(all_clips, config, folder, {"checkpoint_id": checkpoint_id, "init": init_id,
                                                                 "shards": [u for _, u, _, _ in known]}, init_folder)
-            stage = _stage(run, STAGE_TRAIN, key, len(all_clips), 1, t0, mh, checkpoint_id=checkpoint_id, steps=steps)
-            batch = LineageBatch(stage_runs=[stage]).extend(tokens.checkpoint_lineage(
-                checkpoint_id, folder, root, [s for _, _, s, _ in known], history, stage.stage_run_id, mh,
+            batch = tokens.checkpoint_lineage(
+                checkpoint_id, folder, root, [s for _, _, s, _ in known], history, stage.id, mh,
                 {"preset": preset_name, "variant": model_config.variant, "steps": steps, "size": size,
-                 "params": params, "init": init_id}))
+                 "params": params, "init": init_id})
             if init_id:
                 batch.edges.append(EdgeRecord(parent_id=init_id, child_id=checkpoint_id, relation="continued_from"))
-            run.write(batch)
-            print(f"trained {preset_name} for {steps} steps in {time.perf_counter() - t0:.1f}s: "
+            stage.finish(len(all_clips), 1, batch, attrs={"checkpoint_id": checkpoint_id, "steps": steps})
+            print(f"trained {preset_name} for {steps} steps in {time.perf_counter() - stage.started:.1f}s: "
                   f"loss {history[-1]['loss']:.4f}, train PSNR {history[-1]['psnr']:.2f} dB")
 
         written = []
         for index, (path, uri, shard_id, shard_mh) in enumerate(known):
-            t0 = time.perf_counter()
             target, rel = tokens.token_shard_path(root, checkpoint_id, index)
             ekey = stable_id(STAGE_ENCODE, checkpoint_id, shard_id, str(max_encode_frames), str(index))
-            if not clips[uri] or (not run.pending(STAGE_ENCODE, [ekey]) and target.exists()):
+            if not clips[uri]:
+                continue
+            stage = run.stage(STAGE_ENCODE, ekey, [target], manifest_hash=shard_mh or mh)
+            if stage.done:
                 continue
             digest, nbytes, n, score = encode_shard(folder, clips[uri], target, max_encode_frames)
-            stage = _stage(run, STAGE_ENCODE, ekey, len(clips[uri]), n, t0, shard_mh or mh, source=uri)
-            run.write(LineageBatch(stage_runs=[stage]).extend(tokens.token_shard_lineage(
-                rel, digest, nbytes, n, checkpoint_id, shard_id, stage.stage_run_id, shard_mh or mh, score)))
+            stage.finish(len(clips[uri]), n, tokens.token_shard_lineage(
+                rel, digest, nbytes, n, checkpoint_id, shard_id, stage.id, shard_mh or mh, score), attrs={"source": uri})
             written.append((rel, n, score))
 
         rows = [(h["step"], f"{h['seconds']:.1f}", f"{h['loss']:.4f}", f"{h['psnr']:.2f}") for h in history]

@@ -18,15 +18,9 @@ from schemas.errors import StepMissing
 from tasks import integrity
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError
 from warehouse import integrity as claims
+from warehouse import queries
+from warehouse.queries import BC_POLICY, POSTTRAINED_WORLD_MODEL
 from warehouse.store import Warehouse
-
-POSTTRAINED_WORLD_MODEL = "attrs->>'model' = 'world_model' AND attrs->>'phase' = 'posttrain'"
-BC_POLICY = "attrs->>'model' = 'bc-policy'"
-
-
-def tokenizer_condition(variant: str | None) -> str:
-    """Tokenizer checkpoints of ``variant`` ("discrete", "continuous"), or of any when None."""
-    return "attrs->>'preset' IS NOT NULL" if variant is None else f"attrs->>'variant' = '{variant}'"
 
 
 def is_hex_id(text: str) -> bool:
@@ -100,14 +94,13 @@ def verified_policy(warehouse: Warehouse | None, root: Path, policy) -> None:
 
 def checkpoint_by_id(warehouse: Warehouse | None, prefix: str, condition: str, what: str,
                      root: Path | None = None) -> tuple[str, str]:
-    """(artifact id, weights uri) of the one checkpoint matching the SQL ``condition`` whose id
+    """(artifact id, weights uri) of the one checkpoint matching ``condition`` (warehouse/queries.py) whose id
     starts with ``prefix``; FileNotFoundError naming ``what`` when there is none or several
     (or no lineage yet: ``warehouse`` None). With ``root``, its weights (when there) are
     checked against the sha256 lineage recorded (TamperedArtifact)."""
     if warehouse is None:
         raise FileNotFoundError(f"{what} {prefix}: no lineage warehouse yet to look the id up in")
-    _, rows = warehouse.query(f"SELECT artifact_id, uri, sha256 FROM artifacts WHERE kind = 'checkpoint' AND {condition} "
-                              "AND artifact_id LIKE $prefix || '%' ORDER BY artifact_id LIMIT 2", {"prefix": prefix})
+    rows = queries.checkpoints_by_prefix(warehouse, condition, prefix)
     if len(rows) != 1:
         raise FileNotFoundError(f"{what} {prefix}: {'no' if not rows else 'more than one'} "
                                 f"{what} checkpoint with that id in lineage")
@@ -141,12 +134,10 @@ def world_model_folder(warehouse: Warehouse | None, root: Path, name: str | None
     if name:
         folder = checkpoint_folder(warehouse, root, name, POSTTRAINED_WORLD_MODEL, "world model")
     else:
-        _, rows = warehouse.query("SELECT uri FROM artifacts WHERE kind = 'checkpoint' AND "
-                                  f"{POSTTRAINED_WORLD_MODEL} ORDER BY recorded_at DESC, artifact_id LIMIT 1"
-                                  ) if warehouse is not None else ([], [])
-        if not rows:
+        uri = queries.newest_checkpoint_uri(warehouse, POSTTRAINED_WORLD_MODEL) if warehouse is not None else None
+        if uri is None:
             raise StepMissing("no post-trained world model in lineage: run `worldline train` first")
-        folder = integrity.path_of(rows[0][0], Path(root).resolve()).parent
+        folder = integrity.path_of(uri, Path(root).resolve()).parent
         verified_checkpoint(warehouse, root, folder)
     config = checkpoints.read_config(folder)
     if missing := [key for key in ("tokenizer", "size") if key not in config]:

@@ -1,18 +1,23 @@
 """The loop's pure half: the worst stressor cells of an evaluation, how many new episodes each
-gets, the manifests derived from them, and fine-tuning a behaviour-cloning policy.
+gets, the manifests derived from them, fine-tuning a behaviour-cloning policy, and the derived
+manifests' lineage and the loop's summary text.
 
 No Prefect here: `flows/loop.py` wires these into the DAG."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
-from schemas.manifest import ScenarioManifest
+from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.panel import StressorGrid
+from schemas.records import EdgeRecord, LineageBatch, MetricRecord
+from tasks import manifests
 from tasks.panels.grid import variant_manifest
 from tasks.policy.bc import Demonstrations
+from tasks.tables import markdown_table
 
 # New data must not replay the panel's seeds (seed, seed+1, ...), the demonstrations of
 # train-policy (seed+1000..) or its held-out check (seed+2000..).
@@ -74,3 +79,31 @@ def before_after(before: Sequence[dict], after: Sequence[dict], targeted: Sequen
     rates = {r["cell"]: r["sim"] for r in after}
     return [{"cell": r["cell"], "episodes": r["episodes"], "before": r["sim"], "after": rates.get(r["cell"]),
              "targeted": r["cell"] in targeted} for r in before]
+
+
+def derived_lineage(parent_hash: str, derived: Sequence[ScenarioManifest], files: Sequence[Path],
+                    picked: Sequence[tuple[str, float]], counts: Sequence[int]) -> LineageBatch:
+    """Each derived manifest, a 'derived_from_failure' edge from the parent, and the success
+    rate of the cell it came from."""
+    batch = LineageBatch()
+    for m, path, (cell, rate), n in zip(derived, files, picked, counts):
+        batch.extend(manifests.lineage(m, str(path)))
+        batch.edges.append(EdgeRecord(parent_id=parent_hash, child_id=manifest_hash(m), relation=RELATION_DERIVED))
+        batch.metrics.append(MetricRecord(subject_id=manifest_hash(m), name="loop_source_success_rate", value=rate,
+                                          manifest_hash=parent_hash, attrs={"cell": cell, "new_episodes": n}))
+    return batch
+
+
+def _fmt(value: float | None) -> str:
+    return "-" if value is None else f"{value:.2f}"
+
+
+def summary_text(table: list[dict], derived: Sequence[ScenarioManifest], counts: Sequence[int],
+                 picked: Sequence[tuple[str, float]]) -> tuple[str, str]:
+    """(table of success per cell before and after, list of the derived manifests) in markdown."""
+    text = markdown_table(("cell", "episodes", "before", "after", "targeted"),
+                          [(r["cell"], r["episodes"], _fmt(r["before"]), _fmt(r["after"]), "yes" if r["targeted"] else "")
+                           for r in table])
+    made = "\n".join(f"- {m.name} ({manifest_hash(m)[:12]}): {n} new episodes, from cell {cell} at {_fmt(rate)}"
+                     for m, n, (cell, rate) in zip(derived, counts, picked))
+    return text, made

@@ -74,3 +74,19 @@ def expand(parent: ScenarioManifest, grid: StressorGrid) -> tuple[PanelSpec, lis
                      variants=tuple(PanelVariant(cell=c.name, manifest_hash=manifest_hash(v), seeds=seeds)
                                     for c, v in zip(grid.cells, variants)))
     return spec, variants
+
+
+def resolve_grid(parent: ScenarioManifest, grid: str | None, episodes: int | None) -> StressorGrid:
+    """The grid in YAML file ``grid`` (default: `default_grid`), with ``episodes`` seeds per cell when given."""
+    chosen = load_grid(grid) if grid else default_grid(parent)
+    if episodes is not None:
+        chosen = StressorGrid.model_validate({**chosen.model_dump(mode="json"), "episodes": episodes})
+    return chosen
+
+
+def primary_camera(manifest: ScenarioManifest, camera: str | None) -> str:
+    """``camera`` (it must be one of the manifest's), or its first world-mounted camera, or its first."""
+    names = [c.name for c in manifest.cameras]
+    if camera is not None and camera not in names:
+        raise ValueError(f"camera {camera!r} is not in manifest {manifest.name} (it has {', '.join(names)})")
+    return camera or next((c.name for c in manifest.cameras if c.mount == "world"), names[0])

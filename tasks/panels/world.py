@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from schemas.manifest import ScenarioManifest
+
 
 class WorldModelUnavailable(RuntimeError):
     """No world model can roll out here (not a world-model checkpoint, or it names no tokenizer)."""
@@ -102,3 +104,21 @@ def world_model_rollout(checkpoint: Path | str, request: WorldModelRequest, root
     frames = decode(tokenizer, torch.cat([context, codes], dim=1)[0])[:request.frames]
     h, w = request.context.shape[1:3]
     return _unsquare(frames, h, w)
+
+
+def world_text(variant: ScenarioManifest) -> str:
+    """The text a world model is conditioned on for a manifest: its instruction and stressor kinds."""
+    from tasks.world.data import episode_text
+
+    return episode_text(variant.task.instruction, [s.kind for s in variant.stressors])
+
+
+def world_request(episode, variant: ScenarioManifest, camera: str, fps: float, frames: np.ndarray) -> WorldModelRequest:
+    """The world model starts where the episode (tasks.sim.files.EpisodeFiles) starts and gets its actions."""
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(episode.table, columns=["action"])
+    actions = np.asarray(table.column("action").to_pylist(), np.float64)
+    control_hz = float(table.schema.metadata[b"control_hz"]) if table.schema.metadata else 50.0
+    return WorldModelRequest(camera=camera, context=frames[:1], actions=actions, control_hz=control_hz, fps=fps,
+                             frames=len(frames), text=world_text(variant))

@@ -11,12 +11,14 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from scipy import stats
 
 from schemas.manifest import ScenarioManifest
 from tasks.panels.detect import judge_frames
+from tasks.panels.world import WorldModelRequest, world_model_rollout, world_text
 from tasks.policy.base import Policy
 from tasks.policy.bc import physics_only
 from tasks.sim.episode import rollout
@@ -109,3 +111,17 @@ def spearman(a: Sequence[float | None], b: Sequence[float | None]) -> float | No
         return None
     value = float(stats.spearmanr(x, y).statistic)
     return None if math.isnan(value) else value
+
+
+def world_verdict(world_model: str, variant: ScenarioManifest, camera: str, done: Rollout,
+                  root: Path) -> tuple[bool | None, str]:
+    """The world model rolls the policy's actions out from the episode's first frame; the
+    frame detector judges what it generates (nothing generated here is written, so the face
+    guard has nothing to guard)."""
+    cam = next(c for c in variant.cameras if c.name == camera)
+    n_frames = int(variant.horizon_s * cam.fps + 1e-9)
+    request = WorldModelRequest(camera=camera, context=done.context, actions=done.actions,
+                                control_hz=done.control_hz, fps=cam.fps, frames=n_frames, text=world_text(variant))
+    generated = world_model_rollout(world_model, request, root)
+    verdict = judge_frames(generated, cam, variant.evaluation, done.package_start, reference=done.context[0])
+    return verdict.success, verdict.reason

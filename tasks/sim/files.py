@@ -102,3 +102,19 @@ def episode_lineage(files: EpisodeFiles, manifest_hash: str, stage_run_id: str, 
                                               stage_run_id=stage_run_id, attrs={"camera": camera, **attrs}))
         batch.edges.append(EdgeRecord(parent_id=episode_id, child_id=vid, relation="rendered"))
     return batch
+
+
+def read_episode(root: Path, digest: str, index: int) -> EpisodeFiles | None:
+    """A finished episode from its files (meta.json is written last), or None."""
+    meta = paths.resolve(root, paths.EPISODE_META, manifest_hash=digest, index=index)
+    if not meta.is_file():
+        return None
+    body = json.loads(meta.read_text())
+    videos = {c: paths.resolve(root, paths.EPISODE_VIDEO, manifest_hash=digest, index=index, camera=c)
+              for c in body["cameras"]}
+    table = paths.resolve(root, paths.EPISODE_TABLE, manifest_hash=digest, index=index)
+    if not table.is_file() or not all(v.is_file() for v in videos.values()):
+        return None
+    return EpisodeFiles(index=index, seed=body["seed"], directory=meta.parent, videos=videos, table=table,
+                        meta=meta, success=body["success"], reason=body["reason"], steps=body["steps"],
+                        stressor_values=body.get("stressors", {}))

@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from flows.lookup import checkpoint_by_id, policy_spec, world_model_folder
+from tasks.lookup import checkpoint_by_id, policy_spec, world_model_folder
 from schemas.records import ArtifactRecord, LineageBatch
 from tasks.checkpoint_files import CONFIG_FILE, CheckpointError
 from warehouse.store import Warehouse

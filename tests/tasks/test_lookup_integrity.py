@@ -4,7 +4,7 @@ import hashlib
 
 import pytest
 
-from flows.lookup import checkpoint_folder, verified_policy, verified_world_model, world_model_folder
+from tasks.lookup import checkpoint_folder, verified_policy, verified_world_model, world_model_folder
 from schemas.errors import TamperedArtifact
 from schemas.records import ArtifactRecord, LineageBatch
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE
