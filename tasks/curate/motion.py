@@ -4,7 +4,10 @@ Three measurements on small grey frames (long side ``size`` px, area-downscaled 
 noise averages out):
 
 - ``motion_mean``: mean absolute grey difference (0-255) between frames ``gap_s`` seconds
-  apart, so slow but real motion still counts while codec flicker does not;
+  apart, so slow but real motion still counts while codec flicker does not; ``moving_fraction``
+  the share of pixels that change by more than noise, and ``motion_visible`` the share that a
+  one-pixel camera move would change as much (a clip is static only when that is large
+  enough for stillness to be seen);
 - global camera translation per step from phase correlation between frames resampled to
   ``jitter_hz`` per second (the frames nearest a regular time grid, so the measure does not
   depend on the frame rate or on frames the decoder left out), giving ``motion_global``
@@ -45,7 +48,12 @@ class MotionConfig(FilterConfig):
     change_sigmas: float = 4.5  # ... or by this many noise sigmas of a frame difference
     # Static means nothing changes at all: a slide deck's pointer or a ticking counter (0.2 %
     # of the picture) already counts as content that moves, so the bound sits below that.
-    static_max: float = 0.001  # moving_fraction at or below which the clip is static
+    static_max: float = 0.001  # moving_fraction at or below which the clip is static ...
+    # ... when a one-pixel camera move would have shown: at least ten times that share of the
+    # picture has detail steep enough (motion_visible). A near-black or featureless picture
+    # cannot be seen to stand still (corpus underexposed segment 415/0/1915: 0.005; corpus
+    # static segments 0.012-0.57; real footage 0.024-0.45, ../shared/data 2026-11-25).
+    visible_min: float = 0.01
     drawn_palette: float = 8.0  # filters.palette_size at or below: drawn, never "static"
     still_camera_max: float = 0.02  # motion_global (long sides / s) for the camera:still tag
     # Calibrated on real footage by a stated rule, not per file: the geometric midpoint between
@@ -174,6 +182,11 @@ def judge(frames: np.ndarray, times: np.ndarray, config: MotionConfig) -> Verdic
         moving.append(float((d > threshold).mean()))
     motion_mean = float(np.mean(diffs))
     moving_fraction = float(np.mean(moving))
+    # Where a one-pixel move of the camera would change a pixel by more than the threshold:
+    # on a picture with almost no such detail (near black, heavily blurred) nothing can be
+    # seen to move, so "static" cannot be told from a moving camera.
+    gy, gx = np.gradient(small(int(starts[0])))
+    visible = float((np.hypot(gx, gy) >= threshold).mean())
 
     # Global camera path from phase correlation, sampled at jitter_hz.
     picked = resample(times, config.jitter_hz)
@@ -219,6 +232,7 @@ def judge(frames: np.ndarray, times: np.ndarray, config: MotionConfig) -> Verdic
     scores = {
         "motion_mean": motion_mean,
         "moving_fraction": moving_fraction,
+        "motion_visible": visible,
         "motion_global": motion_global,
         "shake": shake,
         "jitter_amplitude": amplitude,
@@ -241,7 +255,7 @@ def judge(frames: np.ndarray, times: np.ndarray, config: MotionConfig) -> Verdic
     if shake >= config.shake_min and moving_fraction >= config.shake_moving_min:
         reason = "shake"
         tags.append("camera:shake")
-    elif (moving_fraction <= config.static_max and palette_size(frames[n // 2]) > config.drawn_palette
+    elif (moving_fraction <= config.static_max and visible >= config.visible_min and palette_size(frames[n // 2]) > config.drawn_palette
           and not looks_drawn(frames, times)):
         # A still drawn page (a slide held on screen) is the video-type filter's call, not a
         # locked-off camera; footage has far more than a handful of colours.

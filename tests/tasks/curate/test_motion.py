@@ -51,6 +51,19 @@ def test_static_is_rejected_even_with_sensor_noise():
         assert verdict.scores["moving_fraction"] <= 0.001
 
 
+def test_a_picture_too_dark_to_see_motion_in_is_not_called_static():
+    # A slow pan at a tenth of the exposure: a 1-px move changes almost no pixel by more than
+    # the moving threshold, so stillness cannot be seen (corpus underexposed segments).
+    slow = np.stack([np.arange(T) * 0.1, np.zeros(T)], axis=1)
+    dark = (crops(slow).astype(np.float32) * 0.04).astype(np.uint8)
+    verdict = judge(dark, TIMES, MotionConfig())
+    assert verdict.scores["motion_visible"] < MotionConfig().visible_min and verdict.reason != "static", verdict.scores
+    # The same dark picture standing still is not static either: it is not judged; the
+    # same stillness at full exposure is.
+    assert judge(np.repeat(dark[:1], T, axis=0), TIMES, MotionConfig()).reason != "static"
+    assert judge(crops(STEADY), TIMES, MotionConfig()).scores["motion_visible"] >= MotionConfig().visible_min
+
+
 def test_pan_is_kept_and_tagged_with_its_direction():
     verdict = judge(crops(PAN), TIMES, MotionConfig())
     assert verdict.keep, verdict.scores
