@@ -20,24 +20,25 @@ The server child runs as ``python -m flows.ephemeral <uvicorn arguments>``: Pref
 its module calls is swapped (``guard_prefect``). A command stops the server it started before
 it releases the data root's lock, after sending Prefect's pending logs (Prefect would send them
 at exit, to a server already gone).
+
+This module holds the parent's signals and deadline; starting and stopping the server is in
+ephemeral_server.py, and the server child itself in ephemeral_child.py.
 """
 
 from __future__ import annotations
 
 import os
 import signal
-import subprocess
 import sys
 import threading
-import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from types import ModuleType
 
-PARENT_ENV = "WORLDLINE_EPHEMERAL_PARENT"
+from flows.ephemeral_child import FOLLOW_S, POLL_S, child_main  # noqa: F401  (the server child's entry)
+from flows.ephemeral_server import (PARENT_ENV, _GuardedModule, servers_stopped_on_exit,  # noqa: F401
+                                    stop_servers)
+
 GRACE_S = 5.0  # from the first signal to a forced exit; the server then takes < 1 s to stop
-FOLLOW_S = 10.0  # how long the server waits for its parent after a signal from someone else
-POLL_S = 0.25
 
 
 class Terminated(KeyboardInterrupt):
@@ -68,76 +69,6 @@ def _is_termination(exc: BaseException) -> bool:
     return exceptions is not None and isinstance(exc, exceptions.TerminationSignal)
 
 
-# -- the parent: starting and stopping the server -----------------------------------------------
-def _servers():
-    module = sys.modules.get("prefect.server.api.server")
-    if module is None:  # Prefect never started one
-        return []
-    return [s for s in list(module.SubprocessASGIServer._instances.values()) if s.server_process is not None]
-
-
-def stop_servers(started_after: set[int] | None = None, force: bool = False) -> None:
-    """Stop the temporary servers this process started (those not in ``started_after``, a set of
-    ``id(server)``); ``force`` kills without waiting (the forced exit's path)."""
-    servers = [s for s in _servers() if started_after is None or id(s) not in started_after]
-    if servers and not force:
-        _drain_to_api()
-    for server in servers:
-        if force:
-            try:
-                server.server_process.kill()
-            except OSError:
-                pass
-        else:
-            server.stop()
-
-
-def _drain_to_api() -> None:
-    """Send the logs and events Prefect still holds while the server can take them (Prefect
-    itself drains them at exit, before its atexit hook stops the server; stopping it earlier,
-    as a command does, would leave them retrying a closed port for a minute)."""
-    from prefect.events.worker import EventsWorker
-    from prefect.logging.handlers import APILogWorker
-
-    for service in (APILogWorker, EventsWorker):
-        service.drain_all(timeout=2)
-
-
-@contextmanager
-def servers_stopped_on_exit() -> Iterator[None]:
-    """Stop, on the way out, the temporary servers started inside this block (a test harness's
-    server, started before, is left alone)."""
-    before = {id(s) for s in _servers()}
-    try:
-        yield
-    finally:
-        stop_servers(started_after=before)
-
-
-def _guarded(popen_args: list[str], env: dict[str, str] | None) -> tuple[list[str], dict[str, str]]:
-    if popen_args[1:3] == ["-m", "uvicorn"]:
-        popen_args = [popen_args[0], "-m", __name__, *popen_args[3:]]
-    return popen_args, {**(env if env is not None else os.environ), PARENT_ENV: str(os.getpid())}
-
-
-class _GuardedPopen(subprocess.Popen):
-    """Popen as Prefect's server module calls it, running the server under ``child_main``."""
-
-    def __init__(self, args, *rest, **kwargs):
-        args, kwargs["env"] = _guarded(list(args), kwargs.get("env"))
-        super().__init__(args, *rest, **kwargs)
-
-
-class _GuardedModule(ModuleType):
-    """``subprocess`` as Prefect's server module sees it: the same, but Popen is ``_GuardedPopen``."""
-
-    def __init__(self):
-        super().__init__("subprocess")
-        self.__dict__.update({k: v for k, v in vars(subprocess).items() if not k.startswith("__")})
-        self.Popen = _GuardedPopen
-
-
-# -- the parent: interrupts ---------------------------------------------------------------------
 _first_signal: int | None = None
 _redelivery = False  # Prefect's SIGTERM bridge sends the signal it caught once more, to the handler it replaced
 
@@ -220,37 +151,6 @@ def guard_prefect() -> None:
 
     _prefect_sigterm_handler.arms_deadline = True
     engine._prefect_sigterm_handler = _prefect_sigterm_handler  # Prefect reads it as a module global
-
-
-# -- the child: the server itself ---------------------------------------------------------------
-def _follow(parent: int, stop) -> None:
-    """Stop when the parent has gone, or it asks, or FOLLOW_S after a signal from anyone else."""
-    asked_at = None
-    while True:
-        info = signal.sigtimedwait((signal.SIGINT, signal.SIGTERM), POLL_S)
-        if info is not None:
-            if info.si_pid == parent and info.si_signo == signal.SIGTERM:
-                break
-            asked_at = asked_at or time.monotonic()
-        if os.getppid() != parent or (asked_at is not None and time.monotonic() - asked_at > FOLLOW_S):
-            break
-    stop()
-    time.sleep(FOLLOW_S)  # uvicorn's shutdown normally ends the process well before this
-    os._exit(1)
-
-
-def child_main(argv: list[str]) -> None:
-    """uvicorn with SIGINT and SIGTERM left to ``_follow`` (blocked here, so in every thread
-    uvicorn and Prefect start); uvicorn's graceful shutdown is triggered by SIGUSR1."""
-    import uvicorn.server
-    from uvicorn.main import main as uvicorn_main
-
-    parent = int(os.environ.pop(PARENT_ENV, os.getppid()))
-    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
-    uvicorn.server.HANDLED_SIGNALS = (signal.SIGUSR1,)
-    threading.Thread(target=_follow, args=(parent, lambda: os.kill(os.getpid(), signal.SIGUSR1)),
-                     daemon=True, name="follow-parent").start()
-    uvicorn_main.main(args=argv, prog_name="uvicorn")
 
 
 if __name__ == "__main__":
