@@ -32,7 +32,7 @@ from tasks.panels.grid import expand, primary_camera, resolve_grid
 from tasks.policy.base import Policy
 from tasks.policy.bc import BCPolicy
 from tasks.policy.evaluate import EpisodeOutcome, Rollout, run_episode, success_table, world_verdict
-from tasks.policy.results import agreement_line, compare, comparison_lineage, evaluation_lineage, fmt
+from tasks.policy.results import agreement_line, comparison, comparison_lineage, evaluation_lineage, fmt
 from tasks.policy.specs import load_policy
 
 STAGE = "evaluate_policy"
@@ -106,7 +106,7 @@ def compare_verdicts(run: RunContext, results: list[tuple[str, str, str, list[di
                      root: Path) -> dict:
     """The simulator's verdicts against the frame detector's and the world model's, across
     policies and cells; one 'evaluation' artifact (role comparison) over the policy evaluations."""
-    comparison_id, body = compare(results, episodes)
+    comparison_id, body = comparison(results, episodes)
     target = paths.resolve(root, paths.EVALUATION_FILE, evaluation_id=comparison_id)
     write_json(target, body)
     run.write(comparison_lineage(comparison_id, target, root, body, run.manifest_hash))

@@ -47,7 +47,7 @@ def evaluation_lineage(evaluation_id: str, result_file: Path, root: Path, body: 
     return batch
 
 
-def compare(results: list[tuple[str, str, str, list[dict]]], episodes: list[dict]) -> tuple[str, dict]:
+def comparison(results: list[tuple[str, str, str, list[dict]]], episodes: list[dict]) -> tuple[str, dict]:
     """(comparison id, body): rank correlation of the simulator's verdicts with the frame
     detector's and the world model's, across policies (overall rates) and across policy x cell
     rates, and their agreement episode by episode."""
