@@ -13,98 +13,27 @@ from prefect import flow, task
 from pydantic import Field
 
 from flows.params import Batch, Seed, Side, Steps, Weight
-from flows.recording import RunContext, recorded_run
+from flows.recording import recorded_run
 from flows.report import markdown_table
 from flows.report import publish as publish_report
-from models.tokenizer import VideoTokenizer, preset
+from models.tokenizer import preset
 from schemas import paths
 from schemas.hashing import content_hash, stable_id
 from schemas.records import EdgeRecord
 from schemas.settings import Settings
-from tasks import integrity
-from tasks.lookup import verified_file
-from tasks.tokenize import data, tokens
-from tasks.tokenize.train import TrainConfig, psnr, to_tensor, train_tokenizer
-from tasks.world.inputs import tokenizer_folder
+from tasks.tokenize import data, phases, tokens
+from tasks.tokenize.inputs import init_checkpoint, shard_artifacts, shard_files
+from tasks.tokenize.train import TrainConfig
 
 STAGE_TRAIN, STAGE_ENCODE = "train_tokenizer", "encode_tokens"
 
-
-def shard_files(shards: str, root: Path) -> list[Path]:
-    """A folder or file of shards, or a manifest hash (its first 12+ hex digits) naming its shard folder."""
-    place = Path(shards)
-    if not place.exists() and len(shards) >= 12 and all(ch in "0123456789abcdef" for ch in shards):
-        place = paths.resolve(root, paths.SHARDS_OF_MANIFEST, manifest_hash=shards)
-    found = data.find_shards([place])
-    if not found:
-        raise FileNotFoundError(f"{shards}: no shard files there (give a shard folder or a manifest hash)")
-    return found
-
-
-def shard_artifacts(run: RunContext, files: list[Path]) -> list[tuple[Path, str, str, str | None]]:
-    """(path, uri, artifact id, manifest hash) per shard, each hashed once and checked against
-    lineage: a changed shard raises TamperedArtifact, one curate never wrote InvalidInput
-    (registering it would start a lineage with no clips or raw videos behind it)."""
-    root = run.settings.data_root.resolve()
-    out = []
-    for path in files:
-        shard_id, mh, _ = verified_file(run.warehouse, root, path, "shard", "curated shard",
-                                        "tokenize reads shards `worldline curate` wrote")
-        out.append((path, integrity.uri_of(path, root), shard_id, mh))
-    return out
+train = task(phases.train, name="train-tokenizer", log_prints=True)
+encode_shard = task(phases.encode_shard, name="encode-shard", retries=1)
 
 
 @task(name="decode-shard", retries=1)
 def decode_shard(path: Path, root: Path, uri: str, size: int, max_frames: int) -> list[data.Clip]:
     return data.shard_clips(path, root, uri, size, max_frames)
-
-
-def init_checkpoint(run: RunContext, init: str, preset_name: str) -> tuple[Path, str]:
-    """(folder, artifact id) of the tokenizer checkpoint to continue from (a folder or an id in
-    lineage, as `worldline train --tokenizer` takes them); it must hold the same preset."""
-    folder, checkpoint_id = tokenizer_folder(run.warehouse, run.settings.data_root, init, variant=None)
-    found = tokens.load_checkpoint(folder).config
-    if found != preset(preset_name):
-        raise ValueError(f"--init {folder}: holds tokenizer {found.name!r}, not preset {preset_name!r} "
-                         "(continue training with the same preset)")
-    return folder, checkpoint_id
-
-
-@task(name="train-tokenizer", log_prints=True)
-def train(clips: list[data.Clip], config: TrainConfig, folder: Path, extra: dict,
-          init: Path | None = None) -> tuple[list[dict], int]:
-    """Train from the preset's seeded initial weights (or from checkpoint folder ``init``), log to
-    TensorBoard beside the checkpoint, save it; returns the history and the parameter count."""
-    from torch.utils.tensorboard import SummaryWriter
-
-    torch.manual_seed(config.seed)
-    model = tokens.load_checkpoint(init).train() if init else VideoTokenizer(preset(config.preset))
-    with SummaryWriter(str(folder / "tensorboard")) as writer:
-        every = max(config.log_every, config.steps // 20 // config.log_every * config.log_every)
-
-        def log(record: dict) -> None:
-            for name in ("loss", "psnr", "lr"):
-                writer.add_scalar(f"train/{name}", record[name], record["step"])
-            if record["step"] % every == 0:  # about 20 progress lines per run, into the flow run's log
-                print(f"step {record['step']}/{config.steps} ({record['seconds']:.0f} s): loss {record['loss']:.4f}, "
-                      f"train PSNR {record['psnr']:.2f} dB")
-        history = train_tokenizer(model, data.frame_arrays(clips), config, log)
-    tokens.save_checkpoint(model, folder, {"train": config.model_dump(mode="json"), **extra})
-    return history, sum(p.numel() for p in model.parameters())
-
-
-@task(name="encode-shard", retries=1)
-def encode_shard(folder: Path, clips: list[data.Clip], target: Path, max_frames: int) -> tuple[str, int, int, float | None]:
-    """Encode a shard's clips to a token shard; returns sha256, bytes, rows and the mean round-trip PSNR."""
-    model = tokens.load_checkpoint(folder)
-    rows, scores = [], []
-    for clip in clips:
-        row = tokens.encode_clip(model, clip, max_frames)
-        if row is not None:
-            rows.append(row)
-            scores.append(psnr(to_tensor(clip.frames[:row["frames"]])[None], tokens.decode_row(model, row)).item())
-    digest, size = tokens.write_token_shard(rows, target)
-    return digest, size, len(rows), (sum(scores) / len(scores) if scores else None)
 
 
 @flow(name="tokenize", log_prints=True)
@@ -127,8 +56,8 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
                                                     "size": size, "batch_size": batch_size, "seed": seed,
                                                     "crop": crop, "motion_weight": motion_weight,
                                                     "focus_crops": focus_crops, "init": init}) as run:
-        init_folder, init_id = init_checkpoint(run, init, preset_name) if init else (None, None)
-        known = shard_artifacts(run, files)
+        init_folder, init_id = init_checkpoint(run.warehouse, root, init, preset_name) if init else (None, None)
+        known = shard_artifacts(run.warehouse, root, files)
         hashes = {mh for *_, mh in known if mh}
         mh = hashes.pop() if len(hashes) == 1 else None
         decoded = {uri: decode_shard.submit(path, root, uri, size, max_encode_frames) for path, uri, _, _ in known}
