@@ -96,7 +96,7 @@ def main() -> int:
             spent[0] += time.perf_counter() - t0
             spent[1] += time.process_time() - c0
 
-    overlay_text.judge = timed_judge  # run_filters looks the judge up on the module each call
+    overlay_text.judge = timed_judge  # each config's judge looks the judge up on its module each call
     on, off = CurateConfig(), CurateConfig(overlay_text=OverlayTextConfig(enabled=False))
     print(f"{W}x{H} {FPS} fps, {args.seconds:g} s per clip, median of {args.repeats} alternating runs; "
           "cost = (on - off) / off; share = the filter's own time / the pass with it on (wall; cpu: process time)")

@@ -30,7 +30,7 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from tasks.curate.filters import FilterConfig, Verdict, check_frames, grey, palette_size, sample_indices
+from tasks.curate.filter_base import FilterConfig, Verdict, check_frames, grey, palette_size, sample_indices
 from tasks.curate.video_type import looks_drawn
 
 
@@ -54,7 +54,7 @@ class MotionConfig(FilterConfig):
     # cannot be seen to stand still (corpus underexposed segment 415/0/1915: 0.005; corpus
     # static segments 0.012-0.57; real footage 0.024-0.45, ../shared/data 2026-11-25).
     visible_min: float = 0.01
-    drawn_palette: float = 8.0  # filters.palette_size at or below: drawn, never "static"
+    drawn_palette: float = 8.0  # filter_base.palette_size at or below: drawn, never "static"
     still_camera_max: float = 0.02  # motion_global (long sides / s) for the camera:still tag
     # Calibrated on real footage by a stated rule, not per file: the geometric midpoint between
     # the most jittery file labelled steady handheld and the least jittery file labelled shaky
@@ -68,6 +68,9 @@ class MotionConfig(FilterConfig):
     n_zoom_pairs: int = 4
     zoom_size: int = 64
     min_response: float = 0.3  # phase-correlation peak below which a step's shift is unreliable
+
+    def judge(self, frames: np.ndarray, times: np.ndarray) -> Verdict:
+        return judge(frames, times, self)  # the module's judge below
 
 
 def _runs(n_steps: int, max_steps: int, run_length: int) -> list[tuple[int, int]]:

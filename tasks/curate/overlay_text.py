@@ -51,7 +51,7 @@ import cv2
 import numpy as np
 
 from tasks.curate import text_detector
-from tasks.curate.filters import FilterConfig, Verdict, check_frames, sample_indices
+from tasks.curate.filter_base import FilterConfig, Verdict, check_frames, sample_indices
 from tasks.curate.video_type import VideoTypeConfig
 from tasks.curate.video_type import judge as judge_type
 
@@ -83,6 +83,9 @@ class OverlayTextConfig(FilterConfig):
     search: Literal["bands", "frame"] = "bands"
     text_area_min: float = 0.001
     skip_drawn: bool = True  # leave text on slides and test patterns to the video-type filter
+
+    def judge(self, frames: np.ndarray, times: np.ndarray) -> Verdict:
+        return judge(frames, times, self)  # the module's judge below
 
 
 def detect_in_strips(frame: np.ndarray, rows: list[tuple[int, int]], config: OverlayTextConfig,

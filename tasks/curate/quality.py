@@ -14,7 +14,7 @@ neither dark picture nor flat texture):
   light grey (blacks lifted, few pixels clipped); underexposure is judged by the 99th
   percentile (nothing in the shot is bright), which a dark slide with white text does not
   meet; exposure is only judged on footage, not on drawn content (a palette of a few colours,
-  ``filters.palette_size``, or whatever the video-type filter's rules call drawn).
+  ``filter_base.palette_size``, or whatever the video-type filter's rules call drawn).
 - ``noise``: sensor-noise sigma (grey levels) from consecutive frames aligned by phase
   correlation (``temporal_noise``): noise changes every frame, texture does not, so fine
   texture is not mistaken for noise the way a single-frame estimate would.
@@ -36,7 +36,7 @@ from typing import ClassVar
 import cv2
 import numpy as np
 
-from tasks.curate.filters import (
+from tasks.curate.filter_base import (
     FilterConfig,
     Verdict,
     active_box,
@@ -77,6 +77,9 @@ class QualityConfig(FilterConfig):
     # armwrestle.mp4's decoder freeze (15-22); 7 is about their geometric midpoint. Handheld
     # footage measured 5.7-25 and never repeated a frame for long.
     frozen_motion: float = 7.0
+
+    def judge(self, frames: np.ndarray, times: np.ndarray) -> Verdict:
+        return judge(frames, times, self)  # the module's judge below
 
 
 IMMERKAER = np.array([[1, -2, 1], [-2, 4, -2], [1, -2, 1]], np.float32)

@@ -97,7 +97,7 @@ from scenedetect.detector import FlashFilter
 from tasks.curate.decode import (AnalysisConfig, AnalysisFrame, DecodeError, DecodeReport, ExactFrames, SourceInfo,
                                  analysis_frames, probe)
 from tasks.curate.detectors import RgbAdaptiveDetector, RgbContentDetector
-from tasks.curate.filters import picture_box
+from tasks.curate.filter_base import picture_box
 from tasks.curate.smear import SMEAR_MIN, smear_fraction
 
 MICROSECOND = Fraction(1, 1_000_000)
@@ -455,13 +455,13 @@ def _features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray, 
     return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, small, thumb, smear_fraction(grey)
 
 
-BAR_DARK = 24  # grey level under which a border row or column of every frame is a bar (filters.active_box)
+BAR_DARK = 24  # grey level under which a border row or column of every frame is a bar (filter_base.active_box)
 
 
 def _picture_box(peak: np.ndarray) -> tuple[int, int, int, int]:
     """(top, bottom, left, right) of the picture inside bars, from the running maximum of
     the unblurred thumbnails: border rows (columns) darker than BAR_DARK in every frame seen
-    (98th percentile, as ``filters.active_box``). A crop that leaves less than half is no bar."""
+    (98th percentile, as ``filter_base.active_box``). A crop that leaves less than half is no bar."""
     h, w = peak.shape
     top, bottom, left, right = picture_box(peak, BAR_DARK)
     # A row (column) at a bar's edge is part bar in both frames, which makes them look alike.

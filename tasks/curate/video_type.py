@@ -10,7 +10,7 @@ edges. Measured on ``n_samples`` frames inside the letterbox:
 - ``crisp``: of the pixels that are not flat, the fraction whose neighbourhood spans more
   than ``crisp_range`` levels (a fill boundary; a dark shot is flat but its edges are soft);
 - ``colours``: how many 4-bit-per-channel colours cover 95 % of the contrast-stretched
-  picture (``filters.palette_size``);
+  picture (``filter_base.palette_size``);
 - ``axis_edges``: share of long-edge pixels (Canny components spanning 15 % of the short
   side) whose gradient lies within 4 degrees of horizontal or vertical (bars, grids);
 - ``lines``: share of gradient energy in the 5 % strongest columns and rows of its
@@ -48,7 +48,7 @@ from typing import ClassVar, Literal
 import cv2
 import numpy as np
 
-from tasks.curate.filters import FilterConfig, Verdict, active_box, check_frames, palette_size, sample_indices
+from tasks.curate.filter_base import FilterConfig, Verdict, active_box, check_frames, palette_size, sample_indices
 
 VideoType = Literal["physical", "animation", "slides", "test_pattern", "screen"]
 
@@ -112,6 +112,9 @@ class VideoTypeConfig(FilterConfig):
     # default: its bilateral filter on 8 samples is about a fifth of the analysis pass's filter
     # time, spent on a score nothing reads (bench/curate_speed.py).
     measure_rendered: bool = False
+
+    def judge(self, frames: np.ndarray, times: np.ndarray) -> Verdict:
+        return judge(frames, times, self)  # the module's judge below
 
 
 MODEL_PATH = Path(__file__).with_name("video_type_model.json")

@@ -7,7 +7,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tasks.curate.filters import grey
+from tasks.curate.filter_base import grey
 from tasks.curate.motion import MotionConfig, judge, zoom_rate
 from tests.support import SHARED_DATA as SHARED
 

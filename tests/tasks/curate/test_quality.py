@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from tasks.curate import quality
-from tasks.curate.filters import active_box, sample_indices
+from tasks.curate.filter_base import active_box, sample_indices
 from tasks.curate.quality import QualityConfig, judge, temporal_noise
 
 H, W, FPS, T = 144, 256, 30.0, 60

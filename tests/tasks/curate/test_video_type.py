@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tasks.curate.filters import palette_size
+from tasks.curate.filter_base import palette_size
 from tasks.curate.video_type import VideoTypeConfig, _channel_max, _top_share, classify, frame_features, judge
 
 H, W, FPS, T = 144, 256, 30.0, 60
