@@ -68,7 +68,7 @@ def measure(video: Path, root: Path) -> dict:
 
 
 def frames_of(video: Path) -> tuple[int, float]:
-    from tasks.curate.decode import frame_pts, probe
+    from tasks.video import frame_pts, probe
 
     info = probe(video)
     return len(frame_pts(video)[0]), info.fps

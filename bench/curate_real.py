@@ -39,10 +39,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from tasks.curate.analyse import analyse_video  # noqa: E402
 from tasks.curate.config import load_config  # noqa: E402
-from tasks.curate.decode import DecodeError, analysis_frames  # noqa: E402
+from tasks.curate.decode import analysis_frames  # noqa: E402
 from tasks.curate.filters import run_filters  # noqa: E402
 from tasks.curate.quality import QualityConfig  # noqa: E402
 from tasks.curate.scenes import cut_f1  # noqa: E402
+from tasks.video import DecodeError  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 SHARED = ROOT.parent / "shared" / "data"

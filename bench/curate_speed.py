@@ -52,8 +52,8 @@ from schemas.hashing import sha256_file  # noqa: E402
 from tasks.corpus.generate import VIDEO_MINUTES, generate_corpus  # noqa: E402
 from tasks.curate import analyse, dedup, shards  # noqa: E402
 from tasks.curate.config import CurateConfig  # noqa: E402
-from tasks.curate.decode import open_video, probe  # noqa: E402
-from tasks.curate.encode import EncodeConfig, _to_display, _Writer, encode_clips, output_size  # noqa: E402
+from tasks.curate.encode import _to_display, _Writer, encode_clips  # noqa: E402
+from tasks.video import EncodeConfig, open_video, output_size, probe  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "out"
 SCENEDETECT = Path(sys.executable).with_name("scenedetect")

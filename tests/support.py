@@ -317,7 +317,7 @@ def runner_inbox(folder: Path) -> Path:
     """Two 3-second conveyor_push episodes and one unreadable file: what the task-runner tests
     curate on each runner."""
     from tasks.manifests import load
-    from tasks.mp4 import write_mp4
+    from tasks.video import write_mp4
     from tasks.sim.episode import rollout
 
     folder.mkdir(parents=True, exist_ok=True)

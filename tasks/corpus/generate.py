@@ -24,7 +24,7 @@ from tasks.corpus import nonphysical, procedural
 from tasks.corpus.config import TRUTH_FORMAT, CorpusConfig
 from tasks.corpus.defects import Defect, transform
 from tasks.corpus.plan import SegmentPlan, VideoPlan, plan_corpus
-from tasks.mp4 import write_mp4
+from tasks.video import write_mp4
 
 VIDEO_MINUTES = 2.0  # default length of one raw video
 

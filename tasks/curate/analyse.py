@@ -24,10 +24,12 @@ from tasks import faults
 from tasks.curate import dedup
 from tasks.curate.captions import CaptionConfig, CaptionContext, make_captioner
 from tasks.curate.config import CurateConfig
-from tasks.curate.decode import DecodeError, DecodeReport, frames_at, probe
+from tasks.curate.decode import DecodeReport
+from tasks.curate.exact import frames_at
 from tasks.curate.filters import run_filters
 from tasks.curate.scenes import scenes_of
 from tasks.guard.text import scan_text
+from tasks.video import DecodeError, probe
 
 
 @dataclass

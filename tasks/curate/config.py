@@ -11,7 +11,6 @@ from tasks.manifests import read_text, safe_mapping, validated
 from tasks.curate.captions import CaptionConfig
 from tasks.curate.decode import AnalysisConfig
 from tasks.curate.dedup import DedupConfig
-from tasks.curate.encode import EncodeConfig
 from tasks.curate.motion import MotionConfig
 from tasks.curate.overlay_text import OverlayTextConfig
 from tasks.curate.quality import QualityConfig
@@ -19,6 +18,7 @@ from tasks.curate.scenes import SceneConfig
 from tasks.curate.shards import ShardConfig
 from tasks.curate.video_type import VideoTypeConfig
 from tasks.guard.config import GuardConfig
+from tasks.video import EncodeConfig
 
 VIDEO_SUFFIXES = (".mp4", ".mov", ".mkv", ".avi", ".webm", ".m4v")
 

@@ -1,11 +1,12 @@
 """Re-encode spans of a source video to H.264 MP4 clips, all spans of a source in one pass.
 
-Frame numbers are the decoded-frame indices of ``decode.py`` (frame i has the i-th smallest
-packet pts), so a span found by the analysis pass maps to exactly the same frames here even
+Frame numbers are the decoded-frame indices of ``tasks/video/read.py`` (frame i has the i-th
+smallest packet pts), so a span found by the analysis pass maps to exactly the same frames here even
 after a seek. Clips are written in display orientation with square pixels and even sizes
 (yuv420p needs them). With a fixed ``threads`` count x264 is deterministic, so the same
 input and config give byte-identical clips; each clip is written to a temporary file and
 renamed into place, so a crash never leaves a half-written clip under its final name.
+``EncodeConfig`` and the x264 options are those of ``tasks/video/write.py``.
 """
 
 from __future__ import annotations
@@ -15,65 +16,14 @@ import os
 from collections.abc import Sequence
 from fractions import Fraction
 from pathlib import Path
-from typing import Literal
 
 import av
 import numpy as np
 from av.video.frame import PictureType
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict
 
 from tasks import faults
-from tasks.curate.decode import DecodeError, SourceInfo, frame_pts, open_video, probe
-
-
-class EncodeConfig(BaseModel):
-    """x264 settings for clips."""
-
-    model_config = ConfigDict(frozen=True, extra="forbid")
-
-    preset: Literal["ultrafast", "superfast", "veryfast", "faster", "fast", "medium", "slow"] = "veryfast"
-    crf: int = Field(23, ge=0, le=51)
-    threads: int = Field(1, ge=1, le=16, description="x264 threads; fixed, since the bytes depend on it")
-    x264_params: str = Field("", description="extra x264 options, e.g. 'keyint=60'")
-    decode_threads: int = Field(0, ge=0, le=64, description="decoder threads (0: FFmpeg chooses)")
-    decode_thread_type: Literal["AUTO", "NONE"] = Field("AUTO", description="NONE: decode on one thread")
-    # x264's AVX-512 functions read memory they never wrote: on an AVX-512 CPU the same
-    # frames gave 8 different clips in 8 runs (64x48) while x264 limited to AVX2 gave one.
-    # The limit costs about a quarter of x264's speed on such CPUs (49 vs 67 fps at 720p).
-    reproducible: bool = Field(True, description="keep x264 off AVX-512 so clips are byte-identical")
-
-
-# x264's names for the instruction sets below AVX-512, and the /proc/cpuinfo flag of each.
-X264_CPU_NAMES = (("MMX2", "sse"), ("SSE2", "sse2"), ("SSE3", "pni"), ("SSSE3", "ssse3"), ("SSE4", "sse4_1"),
-                  ("SSE4.2", "sse4_2"), ("AVX", "avx"), ("FMA3", "fma"), ("BMI1", "bmi1"), ("BMI2", "bmi2"),
-                  ("AVX2", "avx2"), ("LZCNT", "abm"), ("Cache64", "clflush"))
-
-
-def x264_cpu_limit(cpuinfo: str | None = None) -> str | None:
-    """x264's ``asm=`` value that keeps this CPU's instruction sets but AVX-512, or None
-    when there is nothing to limit (no AVX-512, or not a Linux x86 machine)."""
-    if cpuinfo is None:
-        try:
-            cpuinfo = Path("/proc/cpuinfo").read_text()
-        except OSError:
-            return None
-    line = next((row for row in cpuinfo.splitlines() if row.startswith("flags")), "")
-    flags = set(line.partition(":")[2].split())
-    if "avx512f" not in flags:
-        return None
-    return ",".join(name for name, flag in X264_CPU_NAMES if flag in flags)
-
-
-def x264_options(config: EncodeConfig) -> dict[str, str]:
-    """The encoder options clips are written with (a benchmark baseline should use them too)."""
-    params = [config.x264_params] if config.x264_params else []
-    limit = x264_cpu_limit() if config.reproducible else None
-    if limit:
-        params.append(f"asm={limit}")
-    options = {"preset": config.preset, "crf": str(config.crf)}
-    if params:
-        options["x264-params"] = ":".join(params)
-    return options
+from tasks.video import DecodeError, EncodeConfig, SourceInfo, frame_pts, open_video, output_size, probe, x264_options
 
 
 class EncodedClip(BaseModel):
@@ -89,11 +39,6 @@ class EncodedClip(BaseModel):
     height: int
     start_frame: int
     end_frame: int
-
-
-def output_size(info: SourceInfo) -> tuple[int, int]:
-    """Even (width, height) of clips in display orientation."""
-    return max(2, info.display_width // 2 * 2), max(2, info.display_height // 2 * 2)
 
 
 class _Writer:

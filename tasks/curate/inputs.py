@@ -117,7 +117,7 @@ def discover(paths: list[str | Path]) -> list[Input]:
     return [found[k] for k in sorted(found)]
 
 
-# DecodeError messages (tasks/curate/decode.py) -> rejection reason; first match wins.
+# DecodeError messages (tasks/video/read.py, tasks/curate/decode.py) -> rejection reason; first match wins.
 DECODE_REASONS = (
     ("no video stream", "no_video_stream"),
     ("absurd frame size", "absurd_frame_size"),

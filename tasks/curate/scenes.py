@@ -30,7 +30,7 @@ The analysis decode leaves out frames nothing predicts from (``skip_unreferenced
 stretches the detector's window and moves its ratio: on sintel.mp4 it lost three cuts a full
 decode finds. Where the two decoded frames around such a gap differ by at least the
 detector's own floor (``min_content_val``, measured with its HSV score), the frames between
-them are decoded exactly (``decode.ExactFrames``) and pushed in order, and so are the gaps over
+them are decoded exactly (``exact.ExactFrames``) and pushed in order, and so are the gaps over
 the next ``adaptive_window`` frames: every cut candidate is then scored on the frames a full
 decode gives. Below that floor no cut can be hiding in the gap.
 
@@ -94,11 +94,12 @@ from pydantic import BaseModel, ConfigDict, Field
 from scenedetect.common import FrameTimecode, Timecode
 from scenedetect.detector import FlashFilter
 
-from tasks.curate.decode import (AnalysisConfig, AnalysisFrame, DecodeError, DecodeReport, ExactFrames, SourceInfo,
-                                 analysis_frames, probe)
+from tasks.curate.decode import AnalysisConfig, AnalysisFrame, DecodeReport, analysis_frames
+from tasks.curate.exact import ExactFrames
 from tasks.curate.detectors import RgbAdaptiveDetector, RgbContentDetector
 from tasks.curate.filter_base import picture_box
 from tasks.curate.smear import SMEAR_MIN, smear_fraction
+from tasks.video import DecodeError, SourceInfo, probe
 
 MICROSECOND = Fraction(1, 1_000_000)
 THUMB_WIDTH = 64
@@ -502,7 +503,7 @@ class SceneSplitter:
     def __init__(self, fps: float, config: SceneConfig = SceneConfig(), keep_frames: bool = True,
                  exact: Callable[[list[int]], list[AnalysisFrame]] | None = None):
         self.config, self.fps, self.keep_frames = config, float(fps), keep_frames
-        # Frames a fast decode left out, decoded exactly on demand (``decode.ExactFrames``):
+        # Frames a fast decode left out, decoded exactly on demand (``exact.ExactFrames``):
         # asked for where the two decoded frames around them suggest a boundary.
         self.exact = exact
         self.refilled = 0  # frames pushed from ``exact``

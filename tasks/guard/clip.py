@@ -11,11 +11,9 @@ from pathlib import Path
 import numpy as np
 
 from schemas.hashing import sha256_file
-from tasks.curate.decode import open_video, probe
-from tasks.curate.encode import EncodeConfig, output_size
 from tasks.guard.config import GuardConfig
 from tasks.guard.faces import FaceDecision, guard_stream, hide
-from tasks.mp4 import write_mp4
+from tasks.video import EncodeConfig, display_frames, probe, write_mp4
 
 
 @dataclass(frozen=True, slots=True)
@@ -31,27 +29,11 @@ class GuardedClip:
     decisions: tuple[FaceDecision, ...]
 
 
-def _display_frames(path: Path) -> Iterator[np.ndarray]:
-    """H x W x 3 uint8 RGB frames in display orientation with square pixels and even sides."""
-    info = probe(path)
-    width, height = output_size(info)
-    turns = info.rotation // 90
-    if turns % 2:
-        width, height = height, width  # decoded size before the rotation
-    container = open_video(path)
-    try:
-        for frame in container.decode(video=0):
-            image = frame.reformat(width, height, "rgb24", interpolation="AREA").to_ndarray()
-            yield np.ascontiguousarray(np.rot90(image, k=turns)) if turns else image
-    finally:
-        container.close()
-
-
 def guard_clip(path_in: Path | str, path_out: Path | str, config: GuardConfig = GuardConfig(),
                encode: EncodeConfig = EncodeConfig(),
                decisions_found: tuple[FaceDecision, ...] | None = None) -> GuardedClip:
     """Write ``path_in`` to ``path_out`` as H.264 (``encode``'s preset and crf, x264 as in
-    ``tasks/mp4.py``: same input, same bytes) with every face hidden. With the guard off the
+    ``tasks/video/write.py``: same input, same bytes) with every face hidden. With the guard off the
     file is copied unchanged. The output has the input's average frame rate (a variable-rate
     input comes out constant-rate) and no audio. ``decisions_found`` (what ``find_faces``
     returned for this file) hides those boxes without searching again."""
@@ -68,12 +50,12 @@ def guard_clip(path_in: Path | str, path_out: Path | str, config: GuardConfig = 
 
     def stream() -> Iterator[tuple[np.ndarray, list[FaceDecision]]]:
         if decisions_found is None:
-            yield from guard_stream(_display_frames(path_in), config)
+            yield from guard_stream(display_frames(path_in), config)
             return
         by_frame: dict[int, list[FaceDecision]] = {}
         for d in decisions_found:
             by_frame.setdefault(d.frame, []).append(d)
-        for i, image in enumerate(_display_frames(path_in)):
+        for i, image in enumerate(display_frames(path_in)):
             made = by_frame.get(i, [])
             yield (hide(image, [d.box for d in made], config) if made else image), made
 
@@ -92,7 +74,7 @@ def guard_clip(path_in: Path | str, path_out: Path | str, config: GuardConfig = 
 def find_faces(path: Path | str, config: GuardConfig = GuardConfig()) -> tuple[FaceDecision, ...]:
     """Every face decision the guard would take on ``path``, without writing anything."""
     decisions: list[FaceDecision] = []
-    for _, made in guard_stream(_display_frames(Path(path)), config):
+    for _, made in guard_stream(display_frames(Path(path)), config):
         decisions.extend(made)
     return tuple(decisions)
 

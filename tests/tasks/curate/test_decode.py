@@ -1,4 +1,4 @@
-"""probe and the single analysis pass, on tiny generated videos whose frames encode their index."""
+"""The single analysis pass (and frames_at), on tiny generated videos whose frames encode their index."""
 
 from __future__ import annotations
 
@@ -10,27 +10,12 @@ import cv2
 import numpy as np
 import pytest
 
-from tasks.curate.decode import (
-    AnalysisConfig,
-    DecodeError,
-    DecodeReport,
-    analysis_frames,
-    frame_pts,
-    frames_at,
-    is_reference,
-    probe,
-)
+from tasks.curate.decode import AnalysisConfig, DecodeReport, analysis_frames
+from tasks.curate.exact import frames_at
+from tasks.video import DecodeError, frame_pts, probe
 from tests.support import coded, read_index
 
 DATA = Path(__file__).resolve().parents[3] / "../shared/data/videos"
-
-
-def test_probe_reports_what_the_file_declares(make_video):
-    path = make_video((coded(i) for i in range(40)), fps=25)
-    info = probe(path)
-    assert (info.width, info.height, info.display_width, info.display_height) == (64, 48, 64, 48)
-    assert info.n_frames == 40 and info.fps == pytest.approx(25.0) and info.duration == pytest.approx(1.6)
-    assert info.codec == "h264" and info.rotation == 0 and info.sar == 1.0 and not info.vfr
 
 
 def test_every_frame_once_in_order_with_pts_times(make_video):
@@ -230,22 +215,6 @@ def test_unreferenced_frames_are_left_undecoded_and_the_rest_keep_their_numbers(
     for f in frames:  # the same pictures, numbers and times as a pass decoding everything
         assert read_index(f.image) == f.index and f.time == pytest.approx(every[f.index].time)
         np.testing.assert_array_equal(f.image, every[f.index].image)
-
-
-def test_is_reference_reads_nal_ref_idc_in_both_framings():
-    slice_ref, slice_unref, idr, sei = b"\x21\xe0", b"\x01\xe0", b"\x65\x88", b"\x06\x05"
-    annex_b = b"\x00\x00\x00\x01\x09\xf0\x00\x00\x01"
-    assert not is_reference(annex_b + slice_unref, 0)
-    assert is_reference(annex_b + slice_ref, 0)
-    assert is_reference(b"\x00\x00\x01" + idr, 0)
-
-    def avcc(*units: bytes) -> bytes:
-        return b"".join(len(u).to_bytes(4, "big") + u for u in units)
-
-    assert not is_reference(avcc(sei, slice_unref, slice_unref), 4)
-    assert is_reference(avcc(slice_unref, slice_ref), 4)  # one referenced slice is enough
-    assert is_reference(avcc(sei), 4)  # no slice: nothing known, decode it
-    assert is_reference(b"\x00\x00\x00\x09\x01", 4)  # a length past the end: unparsable
 
 
 def test_frames_at_gives_exactly_the_full_decode_across_key_frames(make_video):

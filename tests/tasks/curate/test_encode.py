@@ -8,8 +8,9 @@ import numpy as np
 import pytest
 
 import tasks.curate.encode as encode
-from tasks.curate.decode import AnalysisConfig, analysis_frames, probe
-from tasks.curate.encode import EncodeConfig, encode_clip, encode_clips, x264_cpu_limit
+from tasks.curate.decode import AnalysisConfig, analysis_frames
+from tasks.curate.encode import encode_clip, encode_clips
+from tasks.video import EncodeConfig, probe
 from tests.support import coded, read_index
 
 
@@ -97,9 +98,3 @@ def test_bad_spans_are_refused_before_writing(source, tmp_path):
     with pytest.raises(ValueError, match="output paths"):
         encode_clips(source, [(0, 5)], [])
     assert not list(tmp_path.iterdir())
-
-
-def test_x264_is_kept_off_avx512_only_where_there_is_avx512():
-    assert x264_cpu_limit("flags\t\t: fpu sse sse2 ssse3 sse4_1 sse4_2 avx avx2 fma bmi1 bmi2\n") is None
-    limit = x264_cpu_limit("processor: 0\nflags\t\t: fpu sse sse2 pni avx avx2 avx512f avx512bw clflush\n")
-    assert limit == "MMX2,SSE2,SSE3,AVX,AVX2,Cache64"

@@ -9,8 +9,10 @@ import av
 import numpy as np
 import pytest
 
-from tasks.curate.decode import AnalysisConfig, ExactFrames, analysis_frames, is_reference, nal_length_size
+from tasks.curate.decode import AnalysisConfig, analysis_frames
+from tasks.curate.exact import ExactFrames
 from tasks.curate.scenes import SceneConfig, scenes_of
+from tasks.video import is_reference, nal_length_size
 from tests.tasks.curate.test_scenes import H, W, shot
 
 FPS = 25

@@ -7,7 +7,7 @@ import pytest
 from tasks.guard import faces
 from tasks.guard.clip import guard_clip
 from tasks.guard.config import GuardConfig
-from tasks.mp4 import write_mp4
+from tasks.video import write_mp4
 
 
 @pytest.fixture(scope="module")

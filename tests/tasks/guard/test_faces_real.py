@@ -13,7 +13,7 @@ import pytest
 from tasks.curate.config import CurateConfig
 from tasks.guard.clip import guard_clips
 from tasks.guard.faces import guard_frames
-from tasks.mp4 import write_mp4
+from tasks.video import write_mp4
 
 LABELS = json.loads((Path(__file__).parent / "face_boxes.json").read_text())
 

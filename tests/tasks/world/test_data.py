@@ -15,7 +15,7 @@ from tasks.curate.shards import SHARD_SCHEMA
 from tasks.tokenize import tokens
 from tasks.world import data
 from tasks.world.data import align_actions
-from tasks.mp4 import write_mp4
+from tasks.video import write_mp4
 from tests.support import scene_frames
 
 torch.set_num_threads(1)
