@@ -183,16 +183,6 @@ def test_split_scenes_equals_pushing_frame_by_frame():
     assert by_generator == pushed and len(pushed) == 5
 
 
-def test_find_transitions_ignores_a_dark_shot_between_hard_cuts():
-    luma = np.concatenate([np.full(50, 120.0), np.full(20, 5.0), np.full(50, 110.0)])
-    fade = np.concatenate([np.full(50, 120.0), np.linspace(110, 0, 10), np.linspace(10, 110, 10), np.full(50, 110.0)])
-    thumbs = np.zeros((120, 4, 4), np.float32)
-    sharp = np.ones(120)
-    assert find_transitions(luma, sharp, thumbs, 50, SceneConfig(), ended=True) == []
-    # Frames 50..68 are below the shots' level; 69 is back at 110.
-    assert find_transitions(fade, sharp, thumbs, 50, SceneConfig(), ended=True) == [(50, 69, "fade")]
-
-
 def test_cut_f1_counts_one_to_one_hits_within_tolerance():
     truth_cuts, truth_transitions = [100, 200, 300], [(400, 420)]
     perfect = cut_f1([101, 198, 300, (405, 415)], truth_cuts, truth_transitions)
