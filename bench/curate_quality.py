@@ -38,6 +38,7 @@ from tasks.corpus.generate import VIDEO_MINUTES, generate_corpus  # noqa: E402
 from tasks.curate import analyse, dedup  # noqa: E402
 from tasks.curate.config import ConfigError, CurateConfig, load_config  # noqa: E402
 from tasks.curate.decode import analysis_frames  # noqa: E402
+from tasks.curate.dedup_pairs import footage_distance, hash_distance  # noqa: E402
 from tasks.curate.filters import precision_recall, run_filters  # noqa: E402
 from tasks.curate.scenes import SceneSplitter, boundaries, cut_f1  # noqa: E402
 from tasks.video import probe  # noqa: E402
@@ -150,8 +151,8 @@ def dedup_pairs(rows: list[dict], config: CurateConfig) -> tuple[int, int, int, 
 def _pair_distances(sa, sb, config) -> str:
     """The two numbers dedup.group decides a pair on: hash distance and pixel residual."""
     hashes = np.stack([sa.hashes, sb.hashes])
-    dist, hyp, clear = dedup._hash_distance(hashes, np.array([[0, 1]]))
-    residual = dedup._footage_distance(sa, sb, int(hyp[0]), bool(clear[0]), config)
+    dist, hyp, clear = hash_distance(hashes, np.array([[0, 1]]))
+    residual = footage_distance(sa, sb, int(hyp[0]), bool(clear[0]), config)
     return (f"hash {dist[0]:.3f} (max {config.hash_max}), crop {int(hyp[0])}, "
             f"residual {residual:.2f} (max {config.residual_max})")
 

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from schemas.records import ClipRecord
-from tasks.curate import dedup
+from tasks.curate import dedup, dedup_pairs
 from tasks.curate.dedup import ClipSignature, DedupConfig, group, quality_key, signature
 
 H, W, T = 144, 256, 40
@@ -182,50 +182,6 @@ def test_keeps_larger_then_better_then_smallest_id(corpus):
     assert marked["b_big_worse"].phash == sigs["b_big_worse"].phash and len(marked["b_big_worse"].phash) == 16 * 5
 
 
-def _brute_candidates(hashes: np.ndarray, min_collisions: int) -> set[tuple[int, int]]:
-    """Slow reference: count (frame, band) slots where one clip's whole picture matches any crop of the other."""
-    n, f, c = hashes.shape
-    out = set()
-    for i, j in itertools.combinations(range(n), 2):
-        hits = 0
-        for k in range(f):
-            for b in range(dedup.BANDS):
-                band = lambda h: {int(x) >> (b * dedup.BAND_BITS) & 0xFFFF for x in h}  # noqa: E731
-                hits += bool(band(hashes[i, k, :1]) & band(hashes[j, k]) or band(hashes[j, k, :1]) & band(hashes[i, k]))
-        if hits >= min_collisions:
-            out.add((i, j))
-    return out
-
-
-def test_lsh_candidates_match_a_brute_force_count():
-    rng = np.random.default_rng(3)
-    n, f, c = 60, 3, 4
-    hashes = rng.integers(0, 2**63, size=(n, f, c), dtype=np.uint64)
-    for i in range(0, n, 6):  # plant near copies: a few flipped bits, in one crop
-        hashes[i + 1, :, 2] = hashes[i, :, 0] ^ np.uint64(1 << int(rng.integers(0, 64)))
-        hashes[i + 2] = hashes[i] ^ np.uint64(0b1001)
-    got = {tuple(map(int, p)) for p in dedup._candidates(hashes, DedupConfig(min_collisions=2))}
-    assert got == _brute_candidates(hashes, 2)
-    assert len(got) >= 2 * n // 6
-
-
-def test_crowded_buckets_are_split_not_dropped():
-    """400 clips of one 'scene': bands 0 and 1 each take one of 4 values (100 clips per bucket,
-    crowded past max_bucket=50). Copies that share only those two bands are still proposed, via
-    the (band 0, band 1) buckets of about 25 clips, and far from all pairs are."""
-    rng = np.random.default_rng(5)
-    n, f, c = 400, 3, 4
-    hashes = rng.integers(0, 2**63, size=(n, 1, c), dtype=np.uint64).repeat(f, axis=1)
-    low = rng.integers(0, 4, n).astype(np.uint64) | (rng.integers(0, 4, n).astype(np.uint64) << np.uint64(16))
-    hashes = (hashes & ~np.uint64(0xFFFFFFFF)) | low[:, None, None]
-    copies = [(i, i + 1) for i in range(0, 40, 2)]
-    for i, j in copies:
-        hashes[j] = hashes[i] ^ np.uint64(0x0001_0001_0000_0000)  # differs in bands 2 and 3
-    got = {tuple(map(int, p)) for p in dedup._candidates(hashes, DedupConfig(max_bucket=50))}
-    assert set(copies) <= got
-    assert len(got) < 0.1 * n * (n - 1) / 2
-
-
 def test_grouping_scales_without_all_pairs():
     """2,000 clips of random content and 100 exact copies: candidates stay near the copies."""
     rng = np.random.default_rng(0)
@@ -257,17 +213,6 @@ def test_signature_layout_and_bad_input():
         group({"a": sig, "b": signature(frames)}, {})
 
 
-def test_a_dark_edge_on_one_side_is_picture_but_bars_in_pairs_are_cut():
-    rng = np.random.default_rng(7)
-    frames = rng.integers(60, 200, (3, 72, 128)).astype(np.uint8)
-    one_side = frames.copy()
-    one_side[:, :4], one_side[:, :, :6] = 14, 14  # a dim top and left border: no letterbox
-    assert dedup._content_box(one_side, 24) == (0, 72, 0, 128)
-    boxed = frames.copy()
-    boxed[:, :9], boxed[:, -8:] = 0, 0  # bars top and bottom: cut to the narrower
-    assert dedup._content_box(boxed, 24) == (8, 64, 0, 128)
-
-
 def test_a_darkened_copy_of_a_shot_with_a_dim_border_is_found(corpus):
     frames = corpus["arm0"][0].astype(np.int16)
     frames[:, :6] = np.minimum(frames[:, :6], 30)  # a dim border the copy pushes under bar_level
@@ -285,8 +230,8 @@ def test_takes_that_differ_at_one_sampled_moment_are_not_copies(corpus):
     other = frames.copy()
     other[-T // 5:, 40:70, 170:210] = (210, 160, 20)  # something crosses during the last fifth
     sa, sb = signature(frames), signature(other)
-    per_frame = dedup._residual(sa.thumbs[:, 2].astype(np.float32), sb.thumbs.astype(np.float32),
-                                dedup._crop_matrix(DedupConfig().crops[0], 32)).min(axis=1)
+    per_frame = dedup_pairs.pixel_residual(sa.thumbs[:, 2].astype(np.float32), sb.thumbs.astype(np.float32),
+                                dedup_pairs.crop_matrix(DedupConfig().crops[0], 32)).min(axis=1)
     assert per_frame.mean() <= DedupConfig().residual_max < per_frame.max()  # a mean would merge them
     assert group({"a": sa, "b": sb}, {}).removed == {}
 
