@@ -24,7 +24,7 @@ from flows.report import publish
 from flows.simulate import simulate
 from schemas import paths
 from schemas.hashing import content_hash, stable_id
-from schemas.manifest import ScenarioManifest, manifest_hash
+from schemas.manifest import ScenarioManifest
 from schemas.records import LineageBatch, MetricRecord
 from schemas.settings import Settings
 from tasks import loop as steps
@@ -49,7 +49,7 @@ collect = task(bc.collect, name="collect-demonstrations", retries=1, cache_polic
 def write_derived(derived: list[ScenarioManifest], root: Path) -> list[Path]:
     out = []
     for m in derived:
-        target = paths.resolve(root, paths.DERIVED_MANIFEST_FILE, manifest_hash=manifest_hash(m))
+        target = paths.resolve(root, paths.DERIVED_MANIFEST_FILE, manifest_hash=m.sha256)
         target.parent.mkdir(parents=True, exist_ok=True)
         target.write_text(manifests.dump_yaml(m))
         out.append(target)
@@ -70,7 +70,7 @@ def demonstrations(parent: ScenarioManifest, policy: bc.BCPolicy, derived: list[
     training seeds when it was trained on this parent; a manifest the scripted controller
     never solves adds nothing."""
     parts = []
-    if policy.meta.get("manifest_hash") == manifest_hash(parent) and policy.meta.get("train_seeds"):
+    if policy.meta.get("manifest_hash") == parent.sha256 and policy.meta.get("train_seeds"):
         parts.append(collect(parent, policy.meta["train_seeds"]))
     for m, n in zip(derived, counts):
         try:
@@ -94,7 +94,7 @@ def post_train_policy(run: RunContext, parent: ScenarioManifest, old: bc.BCPolic
                       derived: list[ScenarioManifest], counts: list[int], post_steps: int, root: Path) -> tuple[str, Path]:
     """The old policy fine-tuned on the derived manifests' demonstrations; a finished one is reused."""
     config = bc.TrainConfig(steps=post_steps)
-    digests = [manifest_hash(m) for m in derived]
+    digests = [m.sha256 for m in derived]
     key = stable_id(STAGE, old_id, content_hash(config), str(FEATURES_VERSION),
                     *(f"{d}:{n}" for d, n in zip(digests, counts)))
     checkpoint_id = stable_id("checkpoint", key)
@@ -167,7 +167,7 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
         return {"before_evaluation_id": before["evaluation_id"], "after_evaluation_id": after["evaluation_id"],
                 "table": table, "derived": [{"manifest_hash": d, "path": str(p), "cell": c, "episodes": n,
                                              "source_success_rate": rate}
-                                            for d, p, (c, rate), n in zip(map(manifest_hash, derived), files, picked,
+                                            for d, p, (c, rate), n in zip((m.sha256 for m in derived), files, picked,
                                                                           counts)],
                 "shards": [u for g in made for u in g["shards"]], "old_checkpoint_id": old_id, "checkpoint_id": checkpoint_id,
                 "checkpoint": str(folder), "simulated": made}

@@ -20,7 +20,7 @@ from typing import Any
 
 from flows import ephemeral
 from schemas.hashing import stable_id
-from schemas.manifest import ScenarioManifest, manifest_hash
+from schemas.manifest import ScenarioManifest
 from schemas.records import LineageBatch, RunRecord, StageRunRecord
 from schemas.settings import Settings
 from tasks import faults, manifests
@@ -145,7 +145,7 @@ def _recorded(flow: str, settings: Settings, manifest: ScenarioManifest | None, 
               params: dict[str, Any] | None) -> Iterator[RunContext]:
     prefect_id = current_flow_run_id()
     run_id = prefect_id or str(uuid.uuid4())
-    digest = manifest_hash(manifest) if manifest is not None else None
+    digest = manifest.sha256 if manifest is not None else None
     warehouse = Warehouse(settings.warehouse_path, lock_timeout=settings.lock_timeout)
     warehouse.before_commit = lambda: faults.point("lineage")
     _LIVE.add(run_id)

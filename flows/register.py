@@ -8,7 +8,6 @@ from prefect import flow, task
 
 from flows.recording import recorded_run
 from flows.report import markdown_table, publish
-from schemas.manifest import manifest_hash
 from schemas.settings import Settings
 from tasks import manifests
 
@@ -21,7 +20,7 @@ def register(manifest_path: str) -> str:
     manifest = load_manifest(Path(manifest_path))
     with recorded_run("register", Settings(), manifest, source_uri=manifest_path,
                       params={"manifest": manifest_path}):
-        digest = manifest_hash(manifest)
+        digest = manifest.sha256
         print(f"registered {manifest.name} {digest[:12]} from {manifest_path}")
         publish("register", manifest.name, markdown_table(("manifest", "hash", "source", "stressors"), [
             (manifest.name, digest, manifest_path, ", ".join(sorted(s.kind for s in manifest.stressors)))]),

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from functools import cached_property
 from pathlib import PurePosixPath
 from typing import Annotated, Literal, Union
 
@@ -194,11 +195,22 @@ class ScenarioManifest(Frozen):
     def stressor(self, kind: str):
         return next((s for s in self.stressors if s.kind == kind), None)
 
+    @cached_property
+    def sha256(self) -> str:
+        """The manifest hash: sha256 of the canonical JSON of what the manifest means (meta and
+        description left out). Computed once: the manifest is frozen."""
+        return content_hash(self.model_dump(mode="json", exclude=set(VOLATILE_FIELDS)))
+
+    def model_copy(self, *, update=None, deep: bool = False):
+        copied = super().model_copy(update=update, deep=deep)
+        copied.__dict__.pop("sha256", None)  # a copy with changes has a hash of its own
+        return copied
+
 
 VOLATILE_FIELDS = frozenset({"meta", "description"})
 
 
 def manifest_hash(manifest: ScenarioManifest) -> str:
-    """sha256 of the canonical JSON of what the manifest means (meta and description left out)."""
-    body = manifest.model_dump(mode="json", exclude=set(VOLATILE_FIELDS))
-    return content_hash(body)
+    """sha256 of the canonical JSON of what the manifest means (meta and description left out):
+    ``manifest.sha256``, computed once per manifest."""
+    return manifest.sha256

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from schemas.manifest import ScenarioManifest, manifest_hash
+from schemas.manifest import ScenarioManifest
 from schemas.panel import StressorGrid
 from schemas.records import EdgeRecord, LineageBatch, MetricRecord
 from tasks import manifests
@@ -88,8 +88,8 @@ def derived_lineage(parent_hash: str, derived: Sequence[ScenarioManifest], files
     batch = LineageBatch()
     for m, path, (cell, rate), n in zip(derived, files, picked, counts):
         batch.extend(manifests.lineage(m, str(path)))
-        batch.edges.append(EdgeRecord(parent_id=parent_hash, child_id=manifest_hash(m), relation=RELATION_DERIVED))
-        batch.metrics.append(MetricRecord(subject_id=manifest_hash(m), name="loop_source_success_rate", value=rate,
+        batch.edges.append(EdgeRecord(parent_id=parent_hash, child_id=m.sha256, relation=RELATION_DERIVED))
+        batch.metrics.append(MetricRecord(subject_id=m.sha256, name="loop_source_success_rate", value=rate,
                                           manifest_hash=parent_hash, attrs={"cell": cell, "new_episodes": n}))
     return batch
 
@@ -104,6 +104,6 @@ def summary_text(table: list[dict], derived: Sequence[ScenarioManifest], counts:
     text = markdown_table(("cell", "episodes", "before", "after", "targeted"),
                           [(r["cell"], r["episodes"], _fmt(r["before"]), _fmt(r["after"]), "yes" if r["targeted"] else "")
                            for r in table])
-    made = "\n".join(f"- {m.name} ({manifest_hash(m)[:12]}): {n} new episodes, from cell {cell} at {_fmt(rate)}"
+    made = "\n".join(f"- {m.name} ({m.sha256[:12]}): {n} new episodes, from cell {cell} at {_fmt(rate)}"
                      for m, n, (cell, rate) in zip(derived, counts, picked))
     return text, made

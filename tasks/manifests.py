@@ -10,7 +10,7 @@ from yaml.constructor import SafeConstructor
 from pydantic import BaseModel, ValidationError
 
 from schemas.hashing import canonical_json
-from schemas.manifest import ScenarioManifest, manifest_hash
+from schemas.manifest import ScenarioManifest
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, ManifestRow
 from tasks.guard.text import GuardError, check_fields
 
@@ -150,7 +150,7 @@ def dump_yaml(manifest: ScenarioManifest) -> str:
 
 def lineage(manifest: ScenarioManifest, source_uri: str | None = None) -> LineageBatch:
     """The manifest row and its artifact (the root every other artifact descends from)."""
-    digest = manifest_hash(manifest)
+    digest = manifest.sha256
     row = ManifestRow(manifest_hash=digest, name=manifest.name, schema_version=manifest.schema_version,
                       body=canonical_json(manifest), source_uri=source_uri, parent_hash=manifest.parent)
     art = ArtifactRecord(artifact_id=digest, kind="manifest", uri=source_uri, sha256=digest,

@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from schemas.manifest import (CameraJitter, DimLight, Distractors, ForkliftCrossing, Occluder, ScenarioManifest,
-                              manifest_hash)
+from schemas.manifest import CameraJitter, DimLight, Distractors, ForkliftCrossing, Occluder, ScenarioManifest
 from schemas.panel import PanelSpec, PanelVariant, StressorCell, StressorGrid, contract_hash, panel_contract
 from tasks.guard.text import GuardError, check_fields
 # The one safe YAML path (no aliases, bounded size and depth) that manifests are read with.
@@ -57,7 +56,7 @@ def variant_manifest(parent: ScenarioManifest, grid: StressorGrid, cell: Stresso
     body.update(name=f"{parent.name[:62 - len(cell.name)]}--{cell.name}",
                 description=f"panel variant {cell.name!r} ({grid.name}) of {parent.name}",
                 stressors=[s.model_dump(mode="json") for s in stressors],
-                seed=parent.seed if grid.seed is None else grid.seed, parent=manifest_hash(parent))
+                seed=parent.seed if grid.seed is None else grid.seed, parent=parent.sha256)
     return validated(ScenarioManifest, body, f"cell {cell.name!r}: the variant is not a valid manifest", GridError)
 
 
@@ -69,9 +68,9 @@ def expand(parent: ScenarioManifest, grid: StressorGrid) -> tuple[PanelSpec, lis
         # By construction; a schema change that let a stressor move the contract would break panels.
         assert panel_contract(variant) == contract, f"cell {cell.name!r} changed the panel contract"
     seeds = tuple(variants[0].seed + i for i in range(grid.episodes))
-    spec = PanelSpec(name=f"{parent.name}/{grid.name}", parent=manifest_hash(parent), contract=contract,
+    spec = PanelSpec(name=f"{parent.name}/{grid.name}", parent=parent.sha256, contract=contract,
                      contract_hash=contract_hash(contract), grid=grid,
-                     variants=tuple(PanelVariant(cell=c.name, manifest_hash=manifest_hash(v), seeds=seeds)
+                     variants=tuple(PanelVariant(cell=c.name, manifest_hash=v.sha256, seeds=seeds)
                                     for c, v in zip(grid.cells, variants)))
     return spec, variants
 

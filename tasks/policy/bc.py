@@ -28,7 +28,7 @@ from scipy import special
 
 import tasks.sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from models.bc_policy import BCConfig, BCPolicyNet, preset
-from schemas.manifest import ScenarioManifest, manifest_hash
+from schemas.manifest import ScenarioManifest
 from schemas.panel import PanelContract, contract_hash, panel_contract
 from tasks.checkpoint_files import (WEIGHTS_FILE, CheckpointError, load_weights, model_config, read_config,
                                      write_checkpoint)
@@ -170,7 +170,7 @@ def save_checkpoint(model: BCPolicyNet, folder: Path, manifest: ScenarioManifest
     contract = panel_contract(manifest)
     return write_checkpoint(model, folder, "bc", {
         "train": train.model_dump(mode="json"), "features_version": FEATURES_VERSION,
-        "manifest_hash": manifest_hash(manifest), "contract": contract.model_dump(mode="json"),
+        "manifest_hash": manifest.sha256, "contract": contract.model_dump(mode="json"),
         "contract_hash": contract_hash(contract), **(extra or {})})
 
 

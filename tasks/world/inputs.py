@@ -10,7 +10,6 @@ from pathlib import Path
 from models.tokenizer import TokenizerConfig
 from schemas import paths
 from schemas.errors import StepMissing
-from schemas.manifest import manifest_hash
 from tasks import integrity, manifests
 from tasks.checkpoint_files import CheckpointError
 from tasks.lookup import checkpoint_by_id, is_hex_id, verified_file
@@ -125,7 +124,7 @@ def episode_folders(manifest: str, root: Path):
     place = Path(manifest)
     if place.is_file():
         scenario = manifests.load(place)
-        place = paths.resolve(root, paths.EPISODES_OF_MANIFEST, manifest_hash=manifest_hash(scenario))
+        place = paths.resolve(root, paths.EPISODES_OF_MANIFEST, manifest_hash=scenario.sha256)
     elif not place.exists() and is_hex_id(manifest):
         place = paths.resolve(root, paths.EPISODES_OF_MANIFEST, manifest_hash=manifest)
     found = data.episode_dirs(place)

@@ -85,3 +85,16 @@ def test_object_bodies_are_named_as_the_scene_names_them():
 
     assert [object_body_name(o, i) for i, o in enumerate(("Big Box", "", "x" * 30))] == \
         ["big_box", "object_1", "x" * 24 + "_2"]
+
+
+def test_the_manifest_hash_is_computed_once_and_a_changed_copy_has_its_own():
+    from schemas.hashing import content_hash
+    from schemas.manifest import VOLATILE_FIELDS, manifest_hash
+
+    manifest = load(REPO / "manifests" / "conveyor_push.yaml")
+    assert manifest.sha256 == manifest_hash(manifest) == content_hash(
+        manifest.model_dump(mode="json", exclude=set(VOLATILE_FIELDS)))
+    assert manifest.sha256 is manifest.sha256 and "sha256" not in manifest.model_dump()
+    changed = manifest.model_copy(update={"seed": manifest.seed + 1})
+    assert changed.sha256 != manifest.sha256
+    assert changed.sha256 == ScenarioManifest.model_validate(changed.model_dump()).sha256
