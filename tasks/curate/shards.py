@@ -3,7 +3,11 @@
 Rows are grouped into buckets (resolution from the short side, length from the duration),
 sorted inside a bucket by duration then clip id, and cut into files of at most
 ``max_clips`` rows and about ``max_bytes`` bytes under ``schemas.paths.SHARD_FILE``. Every file
-has the schema ``SHARD_SCHEMA``; ``read_shard`` refuses any other. The writer stores no
+has the schema ``SHARD_SCHEMA``; ``read_shard`` refuses any other (but reads the first layout,
+``SHARD_SCHEMA_V1``, whose scores were a Parquet map, converting them). Scores are a list of
+``{key, value}`` structs, since Hugging Face ``datasets`` has no type for an Arrow map: a shard
+folder loads with ``datasets.load_dataset("parquet", data_dir=...)``, streamed too, and
+``clip_bytes`` reads as binary. The writer stores no
 timestamps and fixes compression, row-group size and column order, so the same clip records
 give the same bytes (checked by tests/tasks/curate/test_shards.py). A file is named by its
 content (issue 26), so a later run into the same bucket adds files and never overwrites one;
@@ -40,7 +44,8 @@ SHARD_SCHEMA = pa.schema(
         pa.field("width", pa.int32(), nullable=False),
         pa.field("height", pa.int32(), nullable=False),
         pa.field("duration_s", pa.float64(), nullable=False),
-        pa.field("scores", pa.map_(pa.string(), pa.float64()), nullable=False),
+        pa.field("scores", pa.list_(pa.struct([pa.field("key", pa.string(), nullable=False),
+                                               pa.field("value", pa.float64(), nullable=False)])), nullable=False),
         pa.field("tags", pa.list_(pa.string()), nullable=False),
         pa.field("caption", pa.string(), nullable=False),
         pa.field("dedup_group", pa.string()),
@@ -51,11 +56,17 @@ SHARD_SCHEMA = pa.schema(
         pa.field("clip_bytes", pa.binary()),  # the encoded MP4, when ShardConfig.embed_clips
         pa.field("manifest_hash", pa.string()),
     ],
+    metadata={"worldline.shard_schema": "2"},
+)
+# The first layout (before 2026-11-26): scores as map<string, double>. Still read, never written.
+SHARD_SCHEMA_V1 = pa.schema(
+    [pa.field("scores", pa.map_(pa.string(), pa.float64()), nullable=False) if f.name == "scores" else f
+     for f in SHARD_SCHEMA],
     metadata={"worldline.shard_schema": "1"},
 )
 
 # Parquet leaf column paths: per-column writer options are keyed by these, not by field names.
-_NESTED = {"scores": ("scores.key_value.key", "scores.key_value.value"), "tags": ("tags.list.element",)}
+_NESTED = {"scores": ("scores.list.element.key", "scores.list.element.value"), "tags": ("tags.list.element",)}
 LEAF_COLUMNS = tuple(leaf for name in SHARD_SCHEMA.names for leaf in _NESTED.get(name, (name,)))
 RESOLUTIONS = ((2160, "2160p"), (1440, "1440p"), (1080, "1080p"), (720, "720p"), (480, "480p"), (360, "360p"), (240, "240p"))
 LENGTH_EDGES = (2.0, 5.0, 10.0, 30.0, 60.0)
@@ -144,7 +155,7 @@ def _row(clip: ClipRecord, data: bytes | None) -> dict:
         "width": clip.width,
         "height": clip.height,
         "duration_s": clip.end_s - clip.start_s,
-        "scores": sorted(clip.scores.items()),  # map entries in key order: one layout per meaning
+        "scores": [{"key": k, "value": v} for k, v in sorted(clip.scores.items())],  # key order: one layout per meaning
         "tags": list(clip.tags),
         "caption": clip.caption,
         "dedup_group": clip.dedup_group,
@@ -303,8 +314,23 @@ def read_shard(path: Path) -> pa.Table:
         schema = pq.read_schema(path)
     except (OSError, pa.ArrowException) as exc:
         raise ShardError(f"{path}: not a readable Parquet file: {exc}") from None
+    if schema.equals(SHARD_SCHEMA_V1, check_metadata=False):
+        return _from_v1(pq.read_table(path, schema=SHARD_SCHEMA_V1))
     check_schema(schema, str(path))
     return pq.read_table(path, schema=SHARD_SCHEMA)
+
+
+def _from_v1(table: pa.Table) -> pa.Table:
+    """A first-layout table in SHARD_SCHEMA: each scores map becomes its list of {key, value}."""
+    scores = [[{"key": k, "value": v} for k, v in row] for row in table.column("scores").to_pylist()]
+    column = pa.array(scores, type=SHARD_SCHEMA.field("scores").type)
+    return table.set_column(table.schema.get_field_index("scores"), SHARD_SCHEMA.field("scores"), column) \
+        .replace_schema_metadata(SHARD_SCHEMA.metadata)
+
+
+def scores_of(row: dict) -> dict[str, float]:
+    """A shard row's scores as a dict (they are stored as a list of {key, value})."""
+    return {item["key"]: item["value"] for item in row["scores"]}
 
 
 def check_schema(schema: pa.Schema, where: str) -> None:

@@ -17,6 +17,7 @@ from schemas.errors import EnvironmentFault
 from tasks import faults
 from tasks.curate.shards import (
     SHARD_SCHEMA,
+    SHARD_SCHEMA_V1,
     ShardConfig,
     ShardError,
     legacy_shards,
@@ -25,6 +26,7 @@ from tasks.curate.shards import (
     remove_stale_temporaries,
     rename_legacy,
     resolution_bucket,
+    scores_of,
     shard_lineage,
     write_shards,
 )
@@ -88,7 +90,7 @@ def test_rows_round_trip_in_bucket_order(tmp_path):
             assert resolution_bucket(clip.width, clip.height) == shard.resolution_bucket
             assert length_bucket(clip.end_s - clip.start_s) == shard.length_bucket
             assert row["clip_bytes"] == (tmp_path / clip.uri).read_bytes()
-            assert dict(row["scores"]) == clip.scores and tuple(row["tags"]) == clip.tags
+            assert scores_of(row) == clip.scores and tuple(row["tags"]) == clip.tags
             assert (row["start_frame"], row["end_frame"], row["width"], row["height"]) == (
                 clip.start_frame, clip.end_frame, clip.width, clip.height)
             assert (row["caption"], row["sha256"], row["clip_uri"], row["manifest_hash"]) == (
@@ -236,3 +238,37 @@ def test_a_full_disk_names_the_shard_and_leaves_no_temporary(tmp_path, monkeypat
         write_shards(_clips(tmp_path, 3), tmp_path, MANIFEST)
     assert not list((tmp_path / "shards").rglob("*.parquet")) and not list((tmp_path / "shards").rglob(".*"))
     assert remove_stale_temporaries(tmp_path) == []
+
+
+def test_first_layout_shards_with_map_scores_are_still_read(tmp_path):
+    # Shards written before scores became a list of {key, value} (a Parquet map) stay readable.
+    clips = _clips(tmp_path, 3)
+    shard = write_shards(clips, tmp_path, MANIFEST)[0]
+    table = read_shard(tmp_path / shard.uri)
+    rows = table.to_pylist()
+    old = pa.Table.from_pylist([r | {"scores": sorted(scores_of(r).items())} for r in rows], schema=SHARD_SCHEMA_V1)
+    pq.write_table(old, tmp_path / "old.parquet")
+    assert pq.read_schema(tmp_path / "old.parquet").field("scores").type == pa.map_(pa.string(), pa.float64())
+    assert read_shard(tmp_path / "old.parquet").equals(table)
+
+
+def test_a_shard_folder_loads_with_hugging_face_datasets(tmp_path):
+    datasets = pytest.importorskip("datasets", reason="the dev extra installs datasets")
+    clips = _clips(tmp_path)
+    shards = write_shards(clips, tmp_path, MANIFEST)
+    folder = tmp_path / Path(shards[0].uri).parents[2]  # every bucket of the manifest
+    files = sorted(str(p) for p in folder.rglob("*.parquet"))
+    assert len(files) == len(shards) > 1
+    cache = str(tmp_path / "hf-cache")
+    loaded = datasets.load_dataset("parquet", data_dir=str(folder), split="train", cache_dir=cache)
+    assert len(loaded) == len(clips)
+    assert loaded.features["clip_bytes"] == datasets.Value("binary")
+    by_id = {c.clip_id: c for c in clips}
+    for row in loaded:
+        assert scores_of(row) == by_id[row["clip_id"]].scores
+        assert row["clip_bytes"] == (tmp_path / by_id[row["clip_id"]].uri).read_bytes()
+    streamed = datasets.load_dataset("parquet", data_files=files, split="train", streaming=True)
+    assert sorted(r["clip_id"] for r in streamed) == sorted(by_id)
+    narrow = datasets.load_dataset("parquet", data_files=files, split="train", columns=["clip_id", "scores"],
+                                   cache_dir=cache)
+    assert narrow.column_names == ["clip_id", "scores"] and len(narrow) == len(clips)
