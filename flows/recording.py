@@ -24,7 +24,7 @@ from schemas.manifest import ScenarioManifest
 from schemas.records import LineageBatch, RunRecord, StageRunRecord
 from schemas.settings import Settings
 from tasks import faults, manifests
-from warehouse import lock
+from warehouse import lock, openlineage
 from warehouse.store import Warehouse
 
 _LIVE: set[str] = set()  # runs this process has started and not finished
@@ -155,22 +155,36 @@ def _recorded(flow: str, settings: Settings, manifest: ScenarioManifest | None, 
         warehouse.start_run(RunRecord(run_id=run_id, flow=flow, manifest_hash=digest,
                                       prefect_flow_run_id=prefect_id, params=params or {}))
         warehouse.close_interrupted_runs(_LIVE)  # rows left 'running' by a killed process
+        lineage_events = openlineage.client(settings.data_root)
+        openlineage.emit(lineage_events, lambda: openlineage.event(
+            openlineage.RunState.START, run_id, flow, settings.data_root, digest))
         ctx = RunContext(run_id=run_id, flow=flow, warehouse=warehouse, manifest_hash=digest, settings=settings)
         ephemeral.before_forced_exit.append(on_forced_exit := lambda: _close_on_forced_exit(warehouse, run_id))
         try:
             yield ctx
         except BaseException as exc:
             warehouse.finish_run(run_id, "failed", failure_message(exc))
+            _emit_end(lineage_events, warehouse, ctx, "failed", failure_message(exc))
             raise
         message = ctx.message
         if ctx.failures and not message:
             message = f"{len(ctx.failures)} input(s) failed: " + "; ".join(ctx.failures)[:1800]
         warehouse.finish_run(run_id, ctx.status, message)
+        _emit_end(lineage_events, warehouse, ctx, ctx.status, message)
     finally:
         if "on_forced_exit" in locals():
             ephemeral.before_forced_exit.remove(on_forced_exit)
         _LIVE.discard(run_id)
         warehouse.close()
+
+
+def _emit_end(sender, warehouse: Warehouse, ctx: RunContext, status: str, message: str | None) -> None:
+    """The run's OpenLineage COMPLETE or FAIL event, with the datasets its lineage rows name."""
+    def build():
+        inputs, outputs = openlineage.run_datasets(warehouse, ctx.run_id)
+        return openlineage.event(openlineage.end_state(status), ctx.run_id, ctx.flow, ctx.settings.data_root,
+                                 ctx.manifest_hash, status, message, inputs, outputs)
+    openlineage.emit(sender, build)
 
 
 def _close_on_forced_exit(warehouse: Warehouse, run_id: str) -> None:
