@@ -176,14 +176,22 @@ class VideoTokenizer(nn.Module):
         zin = z + (torch.rand_like(z) * 2 - 1) * latent_noise if latent_noise and self.fsq is None else z
         return self.decoder(zin), z
 
+    def _device(self) -> torch.device:
+        return next(self.parameters()).device
+
     def encode(self, x: torch.Tensor) -> torch.Tensor:
-        z, codes = self._bottleneck(self.encoder(x))
-        return codes if codes is not None else z
+        """Codes (discrete) or latents of video ``B x 3 x T x H x W``, on the input's device
+        (computed on the model's)."""
+        z, codes = self._bottleneck(self.encoder(x.to(self._device())))
+        return (codes if codes is not None else z).to(x.device)
 
     def decode(self, latents: torch.Tensor) -> torch.Tensor:
+        """Video from codes or latents, on the input's device (computed on the model's)."""
+        where = latents.device
+        latents = latents.to(self._device())
         if self.fsq is not None:
             latents = self.fsq.from_codes(latents)
-        return self.decoder(latents)
+        return self.decoder(latents).to(where)
 
 
 _BASE = dict(haar_temporal_levels=2, haar_spatial_levels=1)

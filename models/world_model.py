@@ -260,10 +260,14 @@ class WorldModel(nn.Module):
         context_codes ``B x c x H' x W'`` (c >= 1). ``actions`` ``B x (c - 1 + n) x
         action_features``: row j leads from frame j to j + 1 (an episode's ``actions`` sliced
         as ``[:, :c - 1 + n]``). Argmax when ``temperature`` is 0, else sampling from
-        softmax(logits / temperature) with ``generator``. Past ``max_frames``, the window slides
-        and keeps the latest frames.
+        softmax(logits / temperature) with ``generator`` (a generator on the model's device). Past
+        ``max_frames``, the window slides and keeps the latest frames. Inputs may be on any
+        device: the rollout runs on the model's and returns on the context's.
         """
-        c = context_codes.shape[1]
+        c, where = context_codes.shape[1], context_codes.device
+        device = next(self.parameters()).device  # computed there, returned on the context's device
+        context_codes = context_codes.to(device)
+        actions = actions.to(device) if actions is not None else None
         if actions is not None and actions.shape[1] < c - 1 + n:
             raise ValueError(f"rollout of {n} frames after {c} needs {c - 1 + n} action rows, got {actions.shape[1]}")
         ids = None if text is None else (text if isinstance(text, torch.Tensor) else text_ids(list(text), self.config))
@@ -279,7 +283,7 @@ class WorldModel(nn.Module):
             else:
                 nxt = logits.argmax(dim=-1)
             codes = torch.cat([codes, nxt[:, None]], dim=1)
-        return codes[:, c:]
+        return codes[:, c:].to(where)
 
 
 def _patches(codes: torch.Tensor, q: int) -> torch.Tensor:

@@ -15,6 +15,8 @@ from safetensors import SafetensorError
 from safetensors.torch import load_file, save_file
 from torch import nn
 
+from tasks.device import cpu_state
+
 WEIGHTS_FILE, CONFIG_FILE = "model.safetensors", "config.json"
 Config = TypeVar("Config", bound=BaseModel)
 
@@ -29,7 +31,8 @@ def write_checkpoint(model: nn.Module, folder: Path, key: str, extra: dict | Non
     folder.mkdir(parents=True, exist_ok=True)
     weights, config = folder / WEIGHTS_FILE, folder / CONFIG_FILE
     tmp = folder / f".{WEIGHTS_FILE}.{os.getpid()}.tmp"
-    save_file({k: v.contiguous() for k, v in model.state_dict().items()}, str(tmp),
+    # CPU copies: a checkpoint trained on a GPU loads on a machine without one.
+    save_file({k: v.contiguous() for k, v in cpu_state(model).items()}, str(tmp),
               metadata={key: model.config.model_dump_json()})
     os.replace(tmp, weights)
     body = {key: model.config.model_dump(mode="json"), **(extra or {})}
@@ -66,7 +69,7 @@ def load_weights(model: nn.Module, folder: Path) -> nn.Module:
     if not path.is_file():
         raise CheckpointError(f"{folder}: no {WEIGHTS_FILE}")
     try:
-        model.load_state_dict(load_file(str(path)))
+        model.load_state_dict(load_file(str(path), device="cpu"))
     except (OSError, SafetensorError) as exc:
         raise CheckpointError(f"{path}: unreadable weights ({exc})") from None
     except RuntimeError as exc:  # torch: tensors missing, unexpected or of another shape

@@ -23,6 +23,7 @@ import torch.nn.functional as F
 from pydantic import BaseModel, ConfigDict, Field
 
 from models.tokenizer import VideoTokenizer
+from tasks.device import Runtime, autocast, prepare
 
 
 class TrainConfig(BaseModel):
@@ -54,7 +55,7 @@ def to_tensor(frames: np.ndarray) -> torch.Tensor:
 
 def to_uint8(x: torch.Tensor) -> np.ndarray:
     """Inverse of ``to_tensor`` (clamped and rounded): ``[B x] T x H x W x 3`` uint8."""
-    return x.clamp(-1, 1).add(1).mul(127.5).round().to(torch.uint8).movedim(-4, -1).numpy()
+    return x.clamp(-1, 1).add(1).mul(127.5).round().to(torch.uint8).movedim(-4, -1).cpu().numpy()
 
 
 def change_energy(window: np.ndarray) -> float:
@@ -126,13 +127,17 @@ def lr_at(config: TrainConfig, step: int, progress: float) -> float:
 
 
 def train_tokenizer(model: VideoTokenizer, clips: Sequence[np.ndarray], config: TrainConfig,
-                    on_log: Callable[[dict], None] | None = None) -> list[dict]:
+                    on_log: Callable[[dict], None] | None = None, runtime: Runtime | None = None) -> list[dict]:
     """Train in place; returns one record per ``log_every`` steps: step, seconds, loss, psnr, lr.
 
     ``on_log`` gets each record as it is made (TensorBoard, evaluation); its own time is not
     counted against the budget. Same seed, clips and config: same weights (single-threaded).
+    ``runtime`` says where (``tasks.device``): the model moves there and each batch is sampled
+    on the CPU (the same windows on any device) and moved there; the model is left on it.
     """
     torch.set_num_threads(config.threads)
+    runtime = runtime or Runtime(device="cpu")
+    call, device = prepare(model, runtime)
     gen = torch.Generator().manual_seed(config.seed)
     opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=0.0, betas=(0.9, 0.99))
     history: list[dict] = []
@@ -146,9 +151,11 @@ def train_tokenizer(model: VideoTokenizer, clips: Sequence[np.ndarray], config: 
             break
         for group in opt.param_groups:
             group["lr"] = lr_at(config, step, progress)
-        x = sample_batch(clips, config.clip_frames, config.batch_size, gen, config.crop, config.focus_crops)
-        recon, _ = model(x, latent_noise=config.latent_noise)
-        loss = reconstruction_loss(x, recon, config.motion_weight)
+        x = sample_batch(clips, config.clip_frames, config.batch_size, gen, config.crop,
+                         config.focus_crops).to(device, non_blocking=True)
+        with autocast(runtime, device):
+            recon, _ = call(x, latent_noise=config.latent_noise)
+        loss = reconstruction_loss(x, recon.float(), config.motion_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)

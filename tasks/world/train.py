@@ -17,6 +17,7 @@ import torch
 from pydantic import BaseModel, ConfigDict, Field
 
 from models.world_model import WorldModel, action_scale, next_frame_loss, post_trainable
+from tasks.device import Runtime, autocast, model_device, prepare
 from tasks.world.data import CodeSequence
 
 
@@ -88,15 +89,16 @@ def teacher_forced(model: WorldModel, sequences: Sequence[CodeSequence], frames:
     its episodes by heart scores far better on them than on new ones."""
     was_training = model.training
     model.eval()
+    device = model_device(model)
     losses, right, moved, moved_right, total = [], 0, 0, 0, 0
     for seq in sequences:
         for t0 in range(0, seq.frames - frames + 1, stride):
-            codes = torch.from_numpy(seq.codes[t0:t0 + frames]).long()[None]
+            codes = torch.from_numpy(seq.codes[t0:t0 + frames]).long()[None].to(device)
             actions = None
             if model.config.action_conditioned:
                 if seq.actions is None:
                     raise ValueError(f"{seq.key}: no actions for an action-conditioned model")
-                actions = torch.from_numpy(np.asarray(seq.actions[t0:t0 + frames - 1], np.float32))[None]
+                actions = torch.from_numpy(np.asarray(seq.actions[t0:t0 + frames - 1], np.float32))[None].to(device)
             logits = model(codes, [seq.text], actions)
             losses.append(next_frame_loss(logits, codes).item())
             hit = logits[:, :-1].argmax(-1) == codes[:, 1:]
@@ -121,7 +123,7 @@ def own_inputs(model: WorldModel, codes: torch.Tensor, texts: list[str], actions
     is predicted from frames 0..j of the previous pass, T' - 1 passes in all. Targets stay
     the true frames, so the model learns to pull a drifted frame back to the truth
     (scheduled sampling, Bengio et al. 2015, unrolled over the window)."""
-    picked = torch.rand(codes.shape[0], generator=gen) < share
+    picked = (torch.rand(codes.shape[0], generator=gen) < share).to(codes.device)
     if not picked.any():
         return codes
     sub, acts = codes[picked], None if actions is None else actions[picked]
@@ -156,12 +158,15 @@ def _optimizer(model: WorldModel, config: WorldTrainConfig) -> torch.optim.Optim
 
 
 def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], config: WorldTrainConfig,
-                      on_log: Callable[[dict], None] | None = None) -> list[dict]:
+                      on_log: Callable[[dict], None] | None = None, runtime: Runtime | None = None) -> list[dict]:
     """Train in place; one record per ``log_every`` steps (and the last): step, seconds, loss
     (nats per token), accuracy (argmax next-frame tokens right), copy_accuracy (what repeating
     the current frame would score), lr. An action-conditioned model trains on the sequences'
-    actions. Same seed, sequences and config: same weights (single-threaded)."""
+    actions. Same seed, sequences and config: same weights (single-threaded). ``runtime`` says
+    where (``tasks.device``): windows are sampled on the CPU and moved there; the model stays."""
     torch.set_num_threads(config.threads)
+    runtime = runtime or Runtime(device="cpu")
+    call, device = prepare(model, runtime)
     gen = torch.Generator().manual_seed(config.seed)
     frames = window_length(sequences, model.config.max_frames)
     with_actions = model.config.action_conditioned
@@ -178,9 +183,12 @@ def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], conf
             group["lr"] = lr_at(config, step, progress)
         codes, texts, actions = sample_windows(sequences, frames, config.batch_size, gen, with_actions,
                                                config.text_dropout)
+        codes = codes.to(device, non_blocking=True)
+        actions = actions.to(device, non_blocking=True) if actions is not None else None
         inputs = own_inputs(model, codes, texts, actions, config.self_condition, gen) if config.self_condition else codes
-        logits = model(inputs, texts, actions)
-        loss = next_frame_loss(logits, codes, config.change_weight)
+        with autocast(runtime, device):
+            logits = call(inputs, texts, actions)
+        loss = next_frame_loss(logits.float(), codes, config.change_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
@@ -207,7 +215,8 @@ def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], conf
 
 
 def posttrain(pretrained: WorldModel, episodes: Sequence[CodeSequence], config: WorldTrainConfig,
-              on_log: Callable[[dict], None] | None = None) -> tuple[WorldModel, list[dict]]:
+              on_log: Callable[[dict], None] | None = None,
+              runtime: Runtime | None = None) -> tuple[WorldModel, list[dict]]:
     """A copy of the pre-trained model with a zero-initialised action encoder (so it starts out
     computing exactly what the pre-trained model does), trained on episodes with their actions,
     each action value divided by its root mean square over these episodes (``action_scale``)."""
@@ -215,4 +224,4 @@ def posttrain(pretrained: WorldModel, episodes: Sequence[CodeSequence], config: 
     c = pretrained.config
     scale = action_scale([e.actions for e in episodes], c.action_dim, c.temporal_compression)
     model = post_trainable(pretrained, scale, config.action_totals)
-    return model, train_world_model(model, episodes, config, on_log)
+    return model, train_world_model(model, episodes, config, on_log, runtime)
