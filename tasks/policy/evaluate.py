@@ -33,8 +33,9 @@ class EpisodeOutcome:
     reason: str
     detector: bool | None = None  # the frame detector on the simulator's render; None: undecided / not run
     detector_reason: str | None = None
-    world: bool | None = None  # the frame detector on the world model's rollout; None: no world model
+    world: bool | None = None  # the frame detector on the world model's rollout; None: no world model / undecided
     world_reason: str | None = None
+    world_sure: float | None = None  # share of sampled rollouts that agree with the verdict (None: greedy, one)
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -79,8 +80,10 @@ def success_table(outcomes: Sequence[EpisodeOutcome], cells: Sequence[str]) -> l
     rows = []
     for cell in [*cells, "all"]:
         mine = [o for o in outcomes if cell == "all" or o.cell == cell]
+        sure = [o.world_sure for o in mine if o.world_sure is not None]
         rows.append({"cell": cell, "episodes": len(mine), "sim": rate([o.success for o in mine]),
-                     "detector": rate([o.detector for o in mine]), "world": rate([o.world for o in mine])})
+                     "detector": rate([o.detector for o in mine]), "world": rate([o.world for o in mine]),
+                     "world_sure": float(np.mean(sure)) if sure else None})
     return rows
 
 
@@ -125,3 +128,49 @@ def world_verdict(world_model: str, variant: ScenarioManifest, camera: str, done
     generated = world_model_rollout(world_model, request, root)
     verdict = judge_frames(generated, cam, variant.evaluation, done.package_start, reference=done.context[0])
     return verdict.success, verdict.reason
+
+
+@dataclass(frozen=True)
+class WorldJudgement:
+    """The world model's verdict on one episode and how sure it is.
+
+    ``votes``: the detector's verdict on each sampled rollout (None: undecided); ``sure``: the
+    share of all samples whose verdict is the majority's (None for one greedy rollout). Below
+    ``min_sure`` the judge says undecided (verdict None) rather than guess."""
+
+    verdict: bool | None
+    reason: str
+    sure: float | None
+    votes: tuple[bool | None, ...]
+
+
+def world_judgement(world_model: str, variant: ScenarioManifest, camera: str, done: Rollout, root: Path,
+                    samples: int = 1, temperature: float = 1.0, min_sure: float = 0.75) -> WorldJudgement:
+    """``samples`` = 1: one greedy rollout (``world_verdict``). More: that many rollouts sampled at
+    ``temperature`` (seeds 0..samples-1, so a re-run judges the same), each judged by the frame
+    detector; the verdict is the majority of the decided ones when at least ``min_sure`` of
+    them agree, else undecided."""
+    if samples <= 1:
+        verdict, reason = world_verdict(world_model, variant, camera, done, root)
+        return WorldJudgement(verdict, reason, None, (verdict,))
+    cam = next(c for c in variant.cameras if c.name == camera)
+    n_frames = int(variant.horizon_s * cam.fps + 1e-9)
+    request = WorldModelRequest(camera=camera, context=done.context, actions=done.actions,
+                                control_hz=done.control_hz, fps=cam.fps, frames=n_frames, text=world_text(variant))
+    votes = []
+    for seed in range(samples):
+        generated = world_model_rollout(world_model, request, root, temperature=temperature, seed=seed)
+        votes.append(judge_frames(generated, cam, variant.evaluation, done.package_start,
+                                  reference=done.context[0]).success)
+    decided = [v for v in votes if v is not None]
+    if not decided:
+        return WorldJudgement(None, f"undecided: the detector decided none of {samples} sampled rollouts", 0.0,
+                              tuple(votes))
+    yes = sum(decided)
+    majority = yes * 2 >= len(decided)
+    sure = (yes if majority else len(decided) - yes) / samples
+    if sure < min_sure:
+        return WorldJudgement(None, f"undecided: {yes} of {samples} sampled rollouts succeed "
+                                    f"({len(decided)} decided; {min_sure:.0%} must agree)", sure, tuple(votes))
+    return WorldJudgement(majority, f"{'success' if majority else 'failure'} in {yes if majority else len(decided) - yes}"
+                                    f" of {samples} sampled rollouts", sure, tuple(votes))

@@ -76,3 +76,9 @@ def test_rollout_aligns_actions_with_the_checkpoints_totals(checkpoint, tmp_path
 def test_not_a_world_model_checkpoint(tmp_path):
     with pytest.raises(WorldModelUnavailable, match="not a world-model checkpoint"):
         world_model_rollout(tmp_path, _request())
+
+
+def test_sampled_rollouts_differ_by_seed_and_repeat_with_it(checkpoint):
+    a, b = (world_model_rollout(checkpoint / "wm", _request(), root=checkpoint, temperature=1.0, seed=s) for s in (0, 1))
+    again = world_model_rollout(checkpoint / "wm", _request(), root=checkpoint, temperature=1.0, seed=0)
+    assert np.array_equal(a, again) and not np.array_equal(a[1:], b[1:])

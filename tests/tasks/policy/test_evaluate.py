@@ -21,3 +21,43 @@ def test_agreement_without_decisions_or_without_failures():
     assert a["decided"] == 0 and a["agree"] == 0 and a["balanced"] is None
     b = agreement(_episodes([(True, True), (True, False)]), "world")
     assert b["agree"] == 1 and b["failures"] == 0 and b["balanced"] is None
+
+
+def _judged(monkeypatch, votes, samples=None, **kw):
+    """world_judgement with the rollout and the detector replaced: sample ``seed`` gets ``votes[seed]``."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from tasks.policy import evaluate
+
+    monkeypatch.setattr(evaluate, "world_model_rollout", lambda *a, seed=0, **k: seed)
+    monkeypatch.setattr(evaluate, "judge_frames", lambda seed, *a, **k: SimpleNamespace(success=votes[seed]))
+    cam = SimpleNamespace(name="overhead", fps=10.0)
+    variant = SimpleNamespace(cameras=[cam], horizon_s=1.0, evaluation=None, task=SimpleNamespace(instruction="push"),
+                              stressors=[])
+    done = SimpleNamespace(context=np.zeros((1, 4, 4, 3), np.uint8), actions=np.zeros((5, 2)), control_hz=5.0,
+                           package_start=np.zeros(3))
+    return evaluate.world_judgement("wm", variant, "overhead", done, ".", samples=samples or len(votes), **kw)
+
+
+def test_a_sampled_judge_says_how_sure_it_is_and_abstains_when_split(monkeypatch):
+    sure = _judged(monkeypatch, [True, True, True, False])
+    assert (sure.verdict, sure.sure) == (True, 0.75) and "3 of 4" in sure.reason
+    split = _judged(monkeypatch, [True, False, True, False])
+    assert split.verdict is None and split.sure == 0.5 and split.reason.startswith("undecided")
+    blind = _judged(monkeypatch, [None, None, None])
+    assert blind.verdict is None and blind.sure == 0.0
+    failing = _judged(monkeypatch, [False, False, None, False], min_sure=0.7)
+    assert (failing.verdict, failing.sure) == (False, 0.75)
+
+
+def test_the_table_carries_the_judges_certainty():
+    from tasks.policy.evaluate import EpisodeOutcome, success_table
+
+    outcomes = [EpisodeOutcome("dim", 0, True, "", world=True, world_sure=1.0),
+                EpisodeOutcome("dim", 1, False, "", world=None, world_sure=0.5),
+                EpisodeOutcome("nominal", 0, True, "", world=True)]
+    rows = {r["cell"]: r for r in success_table(outcomes, ["dim", "nominal"])}
+    assert rows["dim"]["world_sure"] == 0.75 and rows["nominal"]["world_sure"] is None
+    assert rows["all"]["world_sure"] == 0.75 and rows["dim"]["world"] == 1.0
