@@ -1,3 +1,3 @@
 """Frozen contracts shared by every stage. Imports nothing else of ours."""
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2

@@ -6,6 +6,10 @@ file, fails there), and a write-ahead log left beside the file must be one DuckD
 (it silently ignores one it cannot: garbage, or another database's). A damaged warehouse
 raises EnvironmentFault before anything is written; a warehouse another process holds is
 waited for, up to the lock timeout, then Busy.
+
+Readers do not hold up the writer (issue 30): the writer publishes a read snapshot beside the
+file (warehouse/snapshot.py) and a reader opens it instead of the main file whenever it is
+current or a writer holds the main file.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import re
 import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -26,6 +30,7 @@ import pyarrow as pa
 from schemas import SCHEMA_VERSION
 from schemas.errors import Busy, EnvironmentFault, NotBuilt
 from schemas.records import LineageBatch, Record, RunRecord
+from warehouse import snapshot
 
 # Column order of each table as the writer fills it; JSON columns are written as text.
 COLUMNS: dict[str, tuple[str, ...]] = {
@@ -38,8 +43,11 @@ COLUMNS: dict[str, tuple[str, ...]] = {
     "rejections": ("artifact_id", "stage", "reason", "scores", "detail", "stage_run_id", "manifest_hash"),
 }
 JSON_COLUMNS = {"attrs", "scores", "params"}
-# version -> statements that take a warehouse from version-1 to version. None yet.
-MIGRATIONS: dict[int, tuple[str, ...]] = {}
+# version -> statements that take a warehouse from version-1 to version. After the last one the
+# tables are those of schema.sql, whose COMMENT ON statements are then applied (`comments`).
+MIGRATIONS: dict[int, tuple[str, ...]] = {
+    2: (),  # issue 30: tables and columns carry COMMENT ON text; nothing else changed
+}
 
 
 # DuckDB's words for a file it cannot trust (a bad block checksum, a short read, a bad header).
@@ -74,6 +82,11 @@ def ddl() -> str:
     return resources.files("warehouse").joinpath("schema.sql").read_text()
 
 
+def comments() -> list[str]:
+    """The COMMENT ON statements of schema.sql (every table and column says what it holds)."""
+    return re.findall(r"COMMENT ON (?:TABLE|COLUMN) [\w.]+ IS '(?:[^']|'')*';", ddl())
+
+
 def closure_sql() -> str:
     return resources.files("warehouse").joinpath("closure.sql").read_text()
 
@@ -94,8 +107,11 @@ class Warehouse:
     """Opens (creating or checking the schema version of) a DuckDB lineage file."""
 
     def __init__(self, path: Path | str, read_only: bool = False, lock_timeout: float | None = None):
-        self.path = Path(path)
+        self.source = Path(path)  # the warehouse file
+        self.path = self.source  # the file open: a reader's is the snapshot when it reads one
         self.read_only = read_only
+        self.snapshot = False  # whether this reader reads the snapshot
+        self._publisher = None if read_only else snapshot.publisher(self.path)
         self.before_commit: Callable[[], None] | None = None  # called inside each batch's transaction
         if not read_only:
             self.path.parent.mkdir(parents=True, exist_ok=True)
@@ -109,13 +125,16 @@ class Warehouse:
         had_wal = wal.is_file() and wal.stat().st_size > 0
         self._key = self.path.resolve()
         first = not _OPEN.get(self._key)  # a nested flow's open shares the checked database DuckDB has loaded
-        self.con = self._connect(lock_timeout)
+        self.con = self._open_reader(lock_timeout) if read_only else self._connect(self.path, lock_timeout)
+        self._key = self.path.resolve()
         _OPEN[self._key] = _OPEN.get(self._key, 0) + 1
         self._lock = threading.Lock()
         try:
             if not read_only and first:
                 self._check_intact(had_wal)
             self._check_version()
+            if not read_only and not snapshot.is_current(self.path):  # new, migrated, or a run died
+                self.publish_snapshot()
         except BaseException:
             self.close()
             raise
@@ -124,25 +143,52 @@ class Warehouse:
     def wal_path(self) -> Path:
         return self.path.with_name(self.path.name + ".wal")
 
-    def _connect(self, timeout: float) -> duckdb.DuckDBPyConnection:
+    def _connect(self, path: Path, timeout: float) -> duckdb.DuckDBPyConnection:
         """Connect, waiting (with backoff) while another process holds the file: DuckDB takes an
         OS lock per process, and a worldline writer holds the data root's lock too, so this
-        waits for a process outside worldline's lock (or a reader) to let go."""
+        waits for a process outside worldline's lock (or a reader of the main file) to let go."""
         deadline, pause = time.monotonic() + timeout, 0.05
         while True:
             try:
-                return duckdb.connect(str(self.path), read_only=self.read_only)
+                return duckdb.connect(str(path), read_only=self.read_only)
             except duckdb.Error as exc:
                 if _is_damage(exc):
-                    raise damaged(self.path, _first_line(exc)) from None
+                    raise damaged(path, _first_line(exc)) from None
                 if _LOCKED not in str(exc):
-                    raise WarehouseError(f"{self.path}: cannot open the warehouse: {_first_line(exc)}") from exc
+                    raise WarehouseError(f"{path}: cannot open the warehouse: {_first_line(exc)}") from exc
                 if time.monotonic() >= deadline:
                     pid = re.search(r"\(PID (\d+)\)", str(exc))
-                    raise Busy(f"{self.path}: another process{f' (pid {pid[1]})' if pid else ''} has the "
+                    raise Busy(f"{path}: another process{f' (pid {pid[1]})' if pid else ''} has the "
                                f"warehouse open; waited {timeout:g} s (WORLDLINE_LOCK_TIMEOUT)") from None
             time.sleep(min(pause, max(0.0, deadline - time.monotonic())))
             pause = min(pause * 2, 1.0)
+
+    def _open_reader(self, timeout: float) -> duckdb.DuckDBPyConnection:
+        """The snapshot when it is current or this process writes the main file; else the main
+        file if no process holds it; else (a writer holds it) the snapshot, a few seconds behind;
+        with no snapshot at all, the main file waited for as before."""
+        snap = snapshot.snapshot_path(self.source)
+        here = bool(_OPEN.get(self.source.resolve()))  # this process writes it: DuckDB refuses a read-only open too
+        if (here or snapshot.is_current(self.source)) and (con := self._open_snapshot(snap)) is not None:
+            return con
+        try:
+            con = self._connect(self.source, 0.0 if snap.is_file() else timeout)
+        except Busy:
+            if not snap.is_file():
+                raise
+            return self._open_snapshot(snap) or self._connect(self.source, timeout)
+        if snapshot.is_current(self.source) and (snap_con := self._open_snapshot(snap)) is not None:
+            con.close()  # a writer closed meanwhile, its last rows published: let the next one in
+            return snap_con
+        return con
+
+    def _open_snapshot(self, snap: Path) -> duckdb.DuckDBPyConnection | None:
+        try:
+            con = duckdb.connect(str(snap), read_only=True)
+        except duckdb.Error:  # replaced and gone, damaged, held read-write by hand: read the main file
+            return None
+        self.path, self.snapshot = snap, True
+        return con
 
     def _check_intact(self, had_wal: bool) -> None:
         """Read every block of every table (DuckDB checks each block's checksum as it reads it),
@@ -194,12 +240,18 @@ class Warehouse:
                 for v in range(version + 1, SCHEMA_VERSION + 1):
                     for stmt in MIGRATIONS[v]:
                         self.con.execute(stmt)
+                for stmt in comments():
+                    self.con.execute(stmt)
                 self.con.execute("UPDATE worldline_meta SET value = ? WHERE key = 'schema_version'", [str(SCHEMA_VERSION)])
 
     # -- writing ------------------------------------------------------------------------
     @contextmanager
     def transaction(self) -> Iterator[duckdb.DuckDBPyConnection]:
-        with self._lock, self._damage_named():
+        """One transaction; after it commits, the read snapshot is published when the throttle
+        allows, else once it does. Every writer of this file in this process holds the file's
+        publish lock meanwhile, so no commit lands while a publish copies the file."""
+        publisher = self._publisher
+        with self._lock, publisher.lock if publisher else nullcontext(), self._damage_named():
             self.con.execute("BEGIN TRANSACTION")
             try:
                 yield self.con
@@ -207,6 +259,27 @@ class Warehouse:
                 self.con.execute("ROLLBACK")
                 raise
             self.con.execute("COMMIT")
+            if publisher is not None:
+                publisher.dirty = True
+                if publisher.wait_s() == 0:
+                    publisher.publish(self.con)
+                else:
+                    publisher.later(self._publish_due)
+
+    def publish_snapshot(self) -> bool:
+        """Publish the read snapshot now (a run's end, the writer's open and close); False when it
+        could not (logged) or this is a reader."""
+        if self._publisher is None or self.con is None:
+            return False
+        with self._lock, self._publisher.lock:
+            return self._publisher.publish(self.con)
+
+    def _publish_due(self) -> None:
+        """The throttle's timer: publish what was committed since the last publish."""
+        with self._lock, self._publisher.lock:
+            self._publisher.timer = None
+            if self.con is not None and self._publisher.dirty:
+                self._publisher.publish(self.con)
 
     def write(self, batch: LineageBatch) -> int:
         """Write a whole batch in one transaction; rows already present are left as they are."""
@@ -253,6 +326,7 @@ class Warehouse:
         with self.transaction() as con:
             con.execute("UPDATE runs SET status = ?, message = ?, ended_at = current_timestamp WHERE run_id = ?",
                         [status, message, run_id])
+        self.publish_snapshot()  # readers see the run's end at once
 
     def completed_stage_runs(self, stage: str, input_keys: list[str]) -> set[str]:
         """The input keys of this stage that a finished run already covered (the skip marker)."""
@@ -284,17 +358,28 @@ class Warehouse:
         try:
             yield
         except duckdb.Error as exc:
+            if _is_damage(exc) and self.snapshot:
+                raise damaged(self.path, _first_line(exc), f"delete it: readers then read {self.source.name}, "
+                                                           "and the next flow run publishes a new one") from None
             if _is_damage(exc):
                 raise damaged(self.path, _first_line(exc)) from None
             raise
 
     def close(self) -> None:
-        """Close the connection and drop it: a failed flow run's traceback keeps this object
-        alive until exit, and DuckDB's bindings report a connection still referenced then."""
+        """Publish what was committed since the last snapshot, then close the connection and drop
+        it: a failed flow run's traceback keeps this object alive until exit, and DuckDB's
+        bindings report a connection still referenced then."""
+        if self._publisher is not None and self.con is not None:
+            with self._lock, self._publisher.lock:
+                if self._publisher.dirty:
+                    self._publisher.publish(self.con)
+                self._publisher.cancel()
         con, self.con = self.con, None
         if con is not None:
             con.close()
             _OPEN[self._key] -= 1
+            if self._publisher is not None and not _OPEN[self._key]:
+                self._publisher.release()  # after DuckDB let go of the file: closing it drops the process's lock
 
     def __enter__(self) -> "Warehouse":
         return self

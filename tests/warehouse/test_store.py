@@ -81,7 +81,7 @@ def test_older_schema_is_migrated(tmp_path, monkeypatch):
     path = tmp_path / "w.duckdb"
     Warehouse(path).close()
     con = duckdb.connect(str(path))
-    con.execute("UPDATE worldline_meta SET value = '0' WHERE key = 'schema_version'")
+    con.execute("UPDATE worldline_meta SET value = ? WHERE key = 'schema_version'", [str(SCHEMA_VERSION - 1)])
     con.close()
     monkeypatch.setitem(store.MIGRATIONS, SCHEMA_VERSION, ("ALTER TABLE runs ADD COLUMN migrated BOOLEAN",))
     with Warehouse(path) as wh:
@@ -207,18 +207,28 @@ def test_a_file_that_is_not_duckdb_is_damaged(tmp_path):
 
 
 # -- issue 26, point 6: a warehouse another process holds is waited for, then Busy ---------------
-HOLD_DUCKDB = ("import duckdb, sys, time\ncon = duckdb.connect(sys.argv[1])\nprint('held', flush=True)\n"
-               "time.sleep(float(sys.argv[2]))\n")
+# Issue 30: a reader holding the file read-only (the duckdb CLI with -readonly) holds up a writer
+# the same way; readers that should not read the snapshot (warehouse/snapshot.py).
+HOLD_DUCKDB = ("import duckdb, sys, time\ncon = duckdb.connect(sys.argv[1], read_only=sys.argv[3] == 'ro')\n"
+               "print('held', flush=True)\ntime.sleep(float(sys.argv[2]))\n")
+HOLDERS = pytest.mark.parametrize("mode", ["rw", "ro"], ids=["a writer", "a reader"])
 
 
-def test_a_warehouse_another_process_holds_is_busy_after_the_timeout(tmp_path):
+def _hold(path: Path, seconds: float, mode: str) -> subprocess.Popen:
+    holder = subprocess.Popen([sys.executable, "-c", HOLD_DUCKDB, str(path), str(seconds), mode], stdout=subprocess.PIPE,
+                              text=True)
+    assert holder.stdout.readline().strip() == "held"
+    return holder
+
+
+@HOLDERS
+def test_a_warehouse_another_process_holds_is_busy_after_the_timeout(tmp_path, mode):
     from schemas.errors import Busy
 
     path = tmp_path / "w.duckdb"
     Warehouse(path).close()
-    holder = subprocess.Popen([sys.executable, "-c", HOLD_DUCKDB, str(path), "30"], stdout=subprocess.PIPE, text=True)
+    holder = _hold(path, 30, mode)
     try:
-        assert holder.stdout.readline().strip() == "held"
         t0 = time.monotonic()
         with pytest.raises(Busy) as caught:
             Warehouse(path, lock_timeout=1)
@@ -231,14 +241,17 @@ def test_a_warehouse_another_process_holds_is_busy_after_the_timeout(tmp_path):
                                  "waited 1 s (WORLDLINE_LOCK_TIMEOUT)")
 
 
-def test_a_warehouse_released_within_the_timeout_opens(tmp_path):
+@HOLDERS
+def test_a_warehouse_released_within_the_timeout_opens(tmp_path, mode):
     path = tmp_path / "w.duckdb"
     Warehouse(path).close()
-    holder = subprocess.Popen([sys.executable, "-c", HOLD_DUCKDB, str(path), "1"], stdout=subprocess.PIPE, text=True)
-    assert holder.stdout.readline().strip() == "held"
+    holder = _hold(path, 1.5, mode)
+    t0 = time.monotonic()
     with Warehouse(path, lock_timeout=30) as wh:
+        waited = time.monotonic() - t0
         assert wh.counts()["runs"] == 0
     holder.wait()
+    assert 0.5 < waited < 15, waited  # it waited (with backoff), then opened
 
 
 def store_header_bytes() -> int:
