@@ -73,9 +73,10 @@ def view_returns(thumbs: np.ndarray, back: int, until: int, peak: np.ndarray, we
                  config: SceneConfig) -> bool:
     """Whether the view before a detector cut leaves and comes back: the frame after the cut
     is unlike the frame before it (best-shift correlation < ``cut_left_view``), but one of
-    the next ``cut_return_s`` is the same view again (>= ``cut_same_view``) as that frame or
-    one of the ``cut_enter_s`` before it (the thing may already be entering the frame before
-    the peak; the frame after a ``weak`` peak confirmed by ``unrelated`` has left the view).
+    the next ``cut_return_s`` is the same view again (>= ``cut_same_view``) as that frame or,
+    for a ``weak`` peak, one of the ``cut_enter_s`` before it (the thing may already be
+    entering the frame before the peak; the frame after a weak peak confirmed by ``unrelated``
+    has left the view).
     Something passed right in front of the lens (a car, a hand): the same shot goes on. Or
     the two sides are one view moved: a whip pan.
 
@@ -85,11 +86,11 @@ def view_returns(thumbs: np.ndarray, back: int, until: int, peak: np.ndarray, we
     top, bottom, left, right = inner_box(peak)  # bars shared by both make any two alike
     thumbs = thumbs[:, top:bottom, left:right]
     before, after = thumbs[back], range(back + 1, until)
-    # A weak peak already had unrelated pictures either side (``unrelated``).
-    left = weak or same_view(before, thumbs[back + 1]) < config.cut_left_view
-    returns = left and any(same_view(thumbs[i], thumbs[j]) >= config.cut_same_view
-                           for i in range(back, -1, -1) for j in after)
     across, shift = best_shift(before, thumbs[back + 1])
+    # A weak peak already had unrelated pictures either side (``unrelated``).
+    left = weak or across < config.cut_left_view
+    views = range(back, -1, -1) if weak else (back,)
+    returns = left and any(same_view(thumbs[i], thumbs[j]) >= config.cut_same_view for i in views for j in after)
     return returns or (across >= config.cut_same_view and shift >= PAN_SHIFT)
 
 
