@@ -24,16 +24,16 @@ from tests.support import REPO
 PER_BATCH = 200
 BATCHES = 20
 
-# Opens the warehouse as any reader does, prints what it sees (artifacts, edges, ancestry rows,
+# Opens the warehouse as any reader does, prints what it sees (the row of counts of SEE, then
 # whether it read the snapshot) and, told to poll, does it again until the stop file exists.
+SEE = "SELECT (SELECT count(*) FROM artifacts), (SELECT count(*) FROM edges), (SELECT count(*) FROM ancestry)"
 READER = """
 import sys, time
 from pathlib import Path
 from warehouse.store import Warehouse
-path, stop, mode = sys.argv[1], Path(sys.argv[2]), sys.argv[3]
-SEE = "SELECT (SELECT count(*) FROM artifacts), (SELECT count(*) FROM edges), (SELECT count(*) FROM ancestry)"
+path, stop, mode, see = sys.argv[1], Path(sys.argv[2]), sys.argv[3], sys.argv[4]
 def look(wh):
-    print(*wh.query(SEE)[1][0], int(wh.snapshot), flush=True)
+    print(*wh.query(see)[1][0], int(wh.snapshot), flush=True)
 if mode == "hold":
     with Warehouse(path, read_only=True, lock_timeout=0) as wh:
         look(wh)
@@ -41,7 +41,7 @@ if mode == "hold":
             time.sleep(0.02)
         look(wh)
 else:
-    print("0 0 0 1", flush=True)
+    print("started", flush=True)
     while True:
         last = stop.exists()
         with Warehouse(path, read_only=True, lock_timeout=0) as wh:
@@ -59,18 +59,22 @@ def _batch(k: int) -> LineageBatch:
     return LineageBatch(artifacts=arts, edges=edges)
 
 
-def _reader(path: Path, stop: Path, mode: str) -> subprocess.Popen:
-    proc = subprocess.Popen([sys.executable, "-c", READER, str(path), str(stop), mode], cwd=REPO,
+def reader(path: Path, stop: Path, mode: str, see: str = SEE) -> subprocess.Popen:
+    """A process that holds the warehouse open for reading (mode "hold") or opens it again and
+    again (mode "poll") until ``stop`` exists; returns once the first has it open."""
+    proc = subprocess.Popen([sys.executable, "-c", READER, str(path), str(stop), mode, see], cwd=REPO,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    proc.first = proc.stdout.readline().split()  # the hold has opened the warehouse
-    assert proc.first, proc.stderr.read()
+    first = proc.stdout.readline().split()
+    assert first, proc.stderr.read()
+    proc.first = [] if first == ["started"] else [tuple(map(int, first))]
     return proc
 
 
-def _seen(proc: subprocess.Popen) -> list[tuple[int, ...]]:
+def seen(proc: subprocess.Popen) -> list[tuple[int, ...]]:
+    """What the reader saw: each look's counts, then 1 when it read the snapshot."""
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
-    return [tuple(map(int, proc.first))] + [tuple(map(int, line.split())) for line in out.splitlines()]
+    return proc.first + [tuple(map(int, line.split())) for line in out.splitlines()]
 
 
 @pytest.fixture
@@ -83,8 +87,8 @@ def eager(monkeypatch):
 def test_readers_held_and_polling_never_stop_the_writer_and_see_whole_batches(tmp_path, eager):
     path, stop = tmp_path / "lineage.duckdb", tmp_path / "stop"
     with Warehouse(path, lock_timeout=0) as wh:  # a new warehouse publishes its (empty) snapshot at once
-        holder = _reader(path, stop, "hold")
-        poller = _reader(path, stop, "poll")
+        holder = reader(path, stop, "hold")
+        poller = reader(path, stop, "poll")
         for k in range(BATCHES):
             wh.write(_batch(k))
             time.sleep(0.02)
@@ -97,7 +101,7 @@ def test_readers_held_and_polling_never_stop_the_writer_and_see_whole_batches(tm
         opened = time.monotonic() - t0
         wh.write(_batch(BATCHES))
     stop.touch()
-    held, polled = _seen(holder), _seen(poller)
+    held, polled = seen(holder), seen(poller)
     with Warehouse(path, read_only=True, lock_timeout=0) as wh:
         final = wh.query("SELECT (SELECT count(*) FROM artifacts), (SELECT count(*) FROM edges), "
                          "(SELECT count(*) FROM ancestry)")[1][0]
