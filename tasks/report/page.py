@@ -359,19 +359,20 @@ def build_report(warehouse: Warehouse, given: str, data_root: Path | str | None 
     return Report(subject, title, page.html(title, subtitle), page.images)
 
 
-def write_report(warehouse: Warehouse | Path | str, id_or_prefix: str, out_path: Path | str,
+def write_report(warehouse: Warehouse | Path | str, id_or_prefix: str, out_path: Path | str | None = None,
                  data_root: Path | str | None = None, images_dir: Path | str | None = None) -> Path:
-    """Write the page of the run or artifact ``id_or_prefix`` names to ``out_path`` (atomically);
-    returns the path. ``warehouse``: an open Warehouse or the path of one (opened read-only).
-    ``data_root``: what artifact uris are relative to (default: the warehouse file's folder).
-    ``images_dir``: also write each picture there as ``<name>.png`` (for Prefect image
-    artifacts). An unknown id raises UnknownId naming the closest ids."""
+    """Write the page of the run or artifact ``id_or_prefix`` names to ``out_path`` (atomically;
+    default ``default_path``); returns the path. ``warehouse``: an open Warehouse or the path of
+    one (opened read-only). ``data_root``: what artifact uris are relative to (default: the
+    warehouse file's folder). ``images_dir``: also write each picture there as ``<name>.png``
+    (for Prefect image artifacts). An unknown id raises UnknownId naming the closest ids."""
     if not isinstance(warehouse, Warehouse):
         with Warehouse(warehouse, read_only=True) as wh:
             return write_report(wh, id_or_prefix, out_path, data_root if data_root is not None else Path(warehouse).parent,
                                 images_dir)
-    report = build_report(warehouse, id_or_prefix, data_root)
-    out_path = Path(out_path)
+    root = Path(data_root) if data_root is not None else Path(getattr(warehouse, "source", warehouse.path)).parent
+    report = build_report(warehouse, id_or_prefix, root)
+    out_path = Path(out_path) if out_path is not None else default_path(root, report.subject.id)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
     tmp.write_text(report.html, encoding="utf-8")

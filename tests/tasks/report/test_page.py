@@ -106,8 +106,10 @@ def test_picture_names_are_prefect_artifact_keys(lineage):
     assert all(re.fullmatch(r"[a-z0-9-]+", name) for name in names)  # what create_image_artifact's key allows
 
 
-def test_default_path_is_under_the_data_root(tmp_path):
-    assert default_path(tmp_path, "run-1") == tmp_path / "reports" / "run-1.html"
+def test_without_out_path_the_page_goes_under_the_data_root(lineage):
+    path = write_report(lineage.warehouse, lineage.shard[:10])
+    assert path == default_path(lineage.root, lineage.shard) == lineage.root / "reports" / f"{lineage.shard}.html"
+    assert f"<title>shard {lineage.shard}</title>" in path.read_text(encoding="utf-8")
 
 
 def test_a_unique_prefix_names_a_run_or_an_artifact(lineage, tmp_path):
