@@ -21,6 +21,7 @@ the main file as before. `query` is what ``worldline sql`` runs.
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import logging
 import os
@@ -78,7 +79,10 @@ def _copy(src: int, dst: Path) -> None:
             pass
         offset = 0
         while offset < size:
-            sent = os.sendfile(out.fileno(), src, offset, size - offset)
+            try:
+                sent = os.sendfile(out.fileno(), src, offset, size - offset)
+            except OSError:  # a system whose sendfile writes only to sockets
+                sent = out.write(os.pread(src, min(size - offset, 1 << 22), offset))
             if sent == 0:
                 raise OSError(f"the warehouse file shrank while it was copied ({offset} of {size} bytes)")
             offset += sent
@@ -92,10 +96,15 @@ def publish(con: duckdb.DuckDBPyConnection, warehouse_path: Path, src: int) -> f
     con.execute("CHECKPOINT")
     target = snapshot_path(warehouse_path)
     tmp = target.with_name(target.name + ".tmp")
-    _copy(src, tmp)
-    stat = os.fstat(src)
-    os.utime(tmp, ns=(stat.st_atime_ns, stat.st_mtime_ns))  # what `is_current` compares
-    os.replace(tmp, target)
+    try:
+        _copy(src, tmp)
+        stat = os.fstat(src)
+        os.utime(tmp, ns=(stat.st_atime_ns, stat.st_mtime_ns))  # what `is_current` compares
+        os.replace(tmp, target)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)  # a full disk leaves no half copy behind
+        raise
     return time.perf_counter() - t0
 
 

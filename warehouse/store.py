@@ -326,7 +326,8 @@ class Warehouse:
         with self.transaction() as con:
             con.execute("UPDATE runs SET status = ?, message = ?, ended_at = current_timestamp WHERE run_id = ?",
                         [status, message, run_id])
-        self.publish_snapshot()  # readers see the run's end at once
+        if self._publisher is not None and self._publisher.dirty:  # unless that commit published it
+            self.publish_snapshot()  # readers see the run's end at once
 
     def completed_stage_runs(self, stage: str, input_keys: list[str]) -> set[str]:
         """The input keys of this stage that a finished run already covered (the skip marker)."""

@@ -182,6 +182,19 @@ def test_without_a_snapshot_readers_wait_for_the_main_file_as_before(tmp_path):
         assert not wh.snapshot and wh.path == path and wh.counts()["artifacts"] == PER_BATCH
 
 
+def test_a_publish_that_fails_never_fails_the_writer(tmp_path, caplog):
+    path = tmp_path / "lineage.duckdb"
+    (tmp_path / "lineage.snapshot.duckdb.tmp").mkdir()  # where each copy would go: no file can be written
+    with Warehouse(path) as wh:
+        for k in range(3):
+            wh.write(_batch(k))
+        wh.finish_run("r", "completed")
+    warned = [r.getMessage() for r in caplog.records if "read snapshot" in r.getMessage()]
+    assert len(warned) == 1 and warned[0].startswith(f"{path}: could not publish the read snapshot (")  # once
+    with Warehouse(path, read_only=True, lock_timeout=0) as wh:  # no snapshot: the main file, as before
+        assert not wh.snapshot and wh.counts()["artifacts"] == 3 * PER_BATCH
+
+
 # A reader holding the main file itself (read-only) makes a writer wait with backoff, then Busy:
 # tests/warehouse/test_store.py, the tests of a warehouse another process holds.
 
