@@ -26,11 +26,16 @@ def artifacts_starting(warehouse: Warehouse, prefix: str, limit: int = 2) -> lis
     return [r[0] for r in rows]
 
 
-def all_ids(warehouse: Warehouse) -> list[tuple[str, str]]:
-    """(id, what) of every run ("run <flow>") and artifact (its kind): what the closest
-    matches of an unknown id are chosen from."""
-    _, rows = warehouse.query("SELECT run_id, 'run ' || flow FROM runs UNION ALL "
-                              "SELECT artifact_id, kind FROM artifacts ORDER BY 1")
+def closest_ids(warehouse: Warehouse, given: str, n: int, cutoff: float = 0.5) -> list[tuple[str, str]]:
+    """(id, what) of the ``n`` runs ("run <flow>") and artifacts (their kind) whose ids are most
+    like ``given``, best first: the Jaro-Winkler similarity of ``given`` and the id's first
+    ``len(given)`` characters (a mistyped id or prefix), or 1 for an id that contains ``given``
+    (a piece of one); at least ``cutoff``. A million ids take DuckDB about a second (0.4-1.7 s here)."""
+    _, rows = warehouse.query(
+        "SELECT id, what FROM (SELECT id, what, greatest(jaro_winkler_similarity(left(id, length($g)), $g), "
+        "CASE WHEN contains(id, $g) THEN 1.0 ELSE 0.0 END) AS score FROM (SELECT run_id AS id, 'run ' || flow AS what "
+        "FROM runs UNION ALL SELECT artifact_id, kind FROM artifacts)) WHERE score >= $c "
+        "ORDER BY score DESC, id LIMIT $n", {"g": given, "c": cutoff, "n": n})
     return rows
 
 

@@ -16,7 +16,6 @@ An unknown id is refused (InvalidInput, exit 2) with the closest ids that do exi
 from __future__ import annotations
 
 import base64
-import difflib
 import html
 import json
 import os
@@ -68,21 +67,6 @@ class Report:
 
 
 # -- which run or artifact --------------------------------------------------------------------
-def closest_ids(given: str, candidates: Sequence[tuple[str, str]], n: int = CLOSEST) -> list[tuple[str, str]]:
-    """The ``n`` (id, what) most like ``given``: each id is compared whole and by its first
-    ``len(given)`` characters (a mistyped prefix), the better ratio counting."""
-    scored = []
-    for identifier, what in candidates:
-        matcher = difflib.SequenceMatcher(None, given, identifier[: max(len(given), 1)])
-        best = matcher.ratio()
-        if len(identifier) != len(given):
-            matcher.set_seq2(identifier)
-            best = max(best, matcher.ratio())
-        scored.append((best, identifier, what))
-    scored.sort(key=lambda s: (-s[0], s[1]))
-    return [(identifier, what) for ratio, identifier, what in scored[:n] if ratio >= 0.3]
-
-
 def resolve(warehouse: Warehouse, given: str) -> Subject:
     """The run or artifact ``given`` names: its whole id, or a prefix of exactly one id."""
     given = given.strip()
@@ -100,7 +84,7 @@ def resolve(warehouse: Warehouse, given: str) -> Subject:
         more = rq.runs_starting(warehouse, given, CLOSEST) + rq.artifacts_starting(warehouse, given, CLOSEST)
         raise UnknownId(f"report: {given!r} is the start of more than one id ({', '.join(more[:CLOSEST])}, ...); "
                         "give more characters", more)
-    close = closest_ids(given, rq.all_ids(warehouse))
+    close = rq.closest_ids(warehouse, given, CLOSEST)
     if not close:
         raise UnknownId(f"report: no run or artifact has id {given!r}, and none is close")
     listed = "; ".join(f"{identifier} ({what})" for identifier, what in close)

@@ -138,6 +138,15 @@ def test_an_unknown_id_lists_the_closest_matches(lineage, tmp_path):
     assert not (tmp_path / "page.html").exists()
 
 
+def test_a_piece_of_an_id_finds_it_and_nothing_alike_says_so(lineage, tmp_path):
+    with pytest.raises(UnknownId) as caught:
+        write_report(lineage.warehouse, "curate-0001", tmp_path / "page.html")
+    assert caught.value.matches[0] == lineage.curate_run
+    with pytest.raises(UnknownId, match="no run or artifact has id 'zzzz-yyyy', and none is close") as caught:
+        write_report(lineage.warehouse, "zzzz-yyyy", tmp_path / "page.html")
+    assert caught.value.matches == []
+
+
 def test_an_unreadable_video_is_named_not_fatal(lineage, tmp_path):
     (tmp_path / "broken.mp4").write_bytes(b"not a video")
     page = Page(tmp_path)
