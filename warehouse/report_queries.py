@@ -82,12 +82,20 @@ def run_rejection_counts(warehouse: Warehouse, run_id: str) -> Table:
                            {"r": run_id})
 
 
-def run_metrics(warehouse: Warehouse, run_id: str) -> list[tuple[str, int, float, str]]:
-    """(name, step, value, subject id) of every metric measured by the run's stage runs, by
-    name and step."""
+def run_metric_summary(warehouse: Warehouse, run_id: str) -> Table:
+    """Per metric name measured by the run's stage runs: how many values, min, mean, max."""
+    return warehouse.query("SELECT m.name, count(*) AS n, min(m.value) AS min, avg(m.value) AS mean, max(m.value) AS max "
+                           "FROM metrics m JOIN stage_runs s USING (stage_run_id) WHERE s.run_id = $r "
+                           "GROUP BY m.name ORDER BY m.name", {"r": run_id})
+
+
+def run_metrics(warehouse: Warehouse, run_id: str, per_name: int) -> list[tuple[str, int, float, str]]:
+    """(name, step, value, subject id) of the metrics measured by the run's stage runs, at most
+    ``per_name`` of each name (the first steps, then subjects in id order), by name and step."""
     _, rows = warehouse.query("SELECT m.name, m.step, m.value, m.subject_id FROM metrics m JOIN stage_runs s "
-                              "USING (stage_run_id) WHERE s.run_id = $r ORDER BY m.name, m.step, m.subject_id",
-                              {"r": run_id})
+                              "USING (stage_run_id) WHERE s.run_id = $r QUALIFY row_number() OVER "
+                              "(PARTITION BY m.name ORDER BY m.step, m.subject_id) <= $n "
+                              "ORDER BY m.name, m.step, m.subject_id", {"r": run_id, "n": per_name})
     return rows
 
 

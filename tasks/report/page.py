@@ -36,6 +36,7 @@ GRAPH_RELATIVES = 40  # ancestors (and descendants) drawn
 SHEET_VIDEOS = 8  # videos in a contact sheet
 SHEET_COLUMNS = 6  # frames per video
 IMAGES_SHOWN = 8  # PNG files a run wrote, embedded
+METRIC_VALUES = 20_000  # values of one metric name plotted
 IMAGE_MAX_BYTES = 4 * 1024 * 1024
 VIDEO_KINDS = ("clip", "episode_video")
 CLOSEST = 5
@@ -245,13 +246,11 @@ def _numbers(page: Page, warehouse: Warehouse, run_id: str) -> None:
     cols, rows = rq.run_rejection_counts(warehouse, run_id)
     page.section("Rejections", table(cols, rows, empty="no rejections"),
                  page.figure("rejections", figures.rejection_plot(rows), "rejections per stage and reason"))
-    metrics = rq.run_metrics(warehouse, run_id)
-    summary: dict[str, list[float]] = {}
-    for name, _, value, _ in metrics:
-        summary.setdefault(name, []).append(value)
-    rows = [(name, len(v), min(v), sum(v) / len(v), max(v)) for name, v in summary.items()]
-    page.section("Metrics", table(["name", "n", "min", "mean", "max"], rows, empty="no metrics"),
-                 page.figure("metrics", figures.metric_plot(metrics), "metrics: series by step, or spread over subjects"))
+    cols, rows = rq.run_metric_summary(warehouse, run_id)
+    page.section("Metrics", table(cols, rows, empty="no metrics"),
+                 page.figure("metrics", figures.metric_plot(rq.run_metrics(warehouse, run_id, METRIC_VALUES)),
+                             f"metrics: series by step, or spread over subjects (the first {METRIC_VALUES:,} "
+                             "values of each)"))
 
 
 def _lineage(page: Page, warehouse: Warehouse, subjects: Sequence[str], descendants: bool,

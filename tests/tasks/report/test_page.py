@@ -159,3 +159,13 @@ def test_lineage_columns_put_children_right_of_parents():
              Node("s", "shard", 0, True), Node("x", "clip", 0, True)]
     edges = [("m", "r", "derived"), ("r", "c", "derived"), ("c", "s", "shard_of"), ("r", "x", "derived")]
     assert layered(nodes, edges) == {"m": 0, "r": 1, "c": 2, "x": 2, "s": 3}
+
+
+def test_metrics_are_summed_up_whole_and_plotted_from_the_first_values(lineage):
+    from warehouse import report_queries as rq
+
+    with Warehouse(lineage.warehouse, read_only=True) as wh:
+        _, summary = rq.run_metric_summary(wh, lineage.train_run)
+        plotted = rq.run_metrics(wh, lineage.train_run, per_name=4)
+    assert summary == [("loss", 10, 0.1, pytest.approx(sum(1 / (s + 1) for s in range(10)) / 10), 1.0)]
+    assert [(name, step) for name, step, _, _ in plotted] == [("loss", s) for s in range(4)]
