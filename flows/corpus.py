@@ -2,12 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Annotated
-
 from prefect import flow, task
-from pydantic import Field
 
-from flows.params import Seed
+from flows.params import Fps, Height, Minutes, Seed, Width
+from flows.params_data import CorpusParams
 from flows.recording import recorded_run
 from flows.report import markdown_table, publish
 from schemas.hashing import stable_id
@@ -18,10 +16,9 @@ generate_corpus = task(generate.generate_corpus, name="generate-corpus", retries
 
 
 @flow(name="corpus", log_prints=True)
-def corpus(minutes: Annotated[float, Field(gt=0, le=600)] = 1.0, seed: Seed = 0,
-           width: Annotated[int, Field(ge=32, le=3840)] = 640, height: Annotated[int, Field(ge=32, le=2160)] = 360,
-           fps: Annotated[float, Field(ge=1, le=120)] = 30.0) -> dict:
+def corpus(minutes: Minutes = 1.0, seed: Seed = 0, width: Width = 640, height: Height = 360, fps: Fps = 30.0) -> dict:
     """Raw videos with a ground-truth JSON beside each, under <data_root>/corpus/seed_<seed>."""
+    CorpusParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     params = {"minutes": minutes, "seed": seed, "width": width, "height": height, "fps": fps}
     with recorded_run("corpus", settings, params=params) as run:

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from prefect import flow, task
 
+from flows.params_data import CurateParams
 from flows.recording import RunContext, recorded_run
 from flows.report import progress, publish
 from flows.runners import task_runner
@@ -165,10 +166,10 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
     return out
 
 
-# The runner (threads or Ray) comes from WORLDLINE_TASK_RUNNER when this module is imported.
-@flow(name="curate", log_prints=True, task_runner=task_runner())
+@flow(name="curate", log_prints=True, task_runner=task_runner())  # threads or Ray: WORLDLINE_TASK_RUNNER at import
 def curate(inputs: list[str], manifest: str | None = None, config: str | None = None) -> dict:
     """Curate the videos in `inputs` (files or folders) under an optional scenario manifest."""
+    CurateParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     cfg = load_config(Path(config) if config else None)
     scenario = load_manifest(Path(manifest)) if manifest else None

@@ -15,6 +15,7 @@ from prefect.cache_policies import NO_CACHE
 
 from flows.panels import panels as panels_flow
 from flows.params import PanelEpisodes
+from flows.params_policy import EvaluateParams
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, progress, publish, write_json
 from flows.runners import task_runner
@@ -128,6 +129,7 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
     """Evaluate ``policies`` (default: the scripted controller at the manifest's noise and at
     0.8) on the panel of ``manifest`` over ``grid``, and on the panels of the ``compare``
     manifests over the same grid (their contracts must match)."""
+    EvaluateParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root
     loaded = [load_policy(p) for p in (policies or DEFAULT_POLICIES)]

@@ -9,15 +9,14 @@ the derived manifests' episodes)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
 
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
-from pydantic import Field
 
 from flows.curate import curate
 from flows.evaluate import evaluate
-from flows.params import Episodes, PanelEpisodes, Steps
+from flows.params import Episodes, PanelEpisodes, Steps, Worst
+from flows.params_policy import LoopParams
 from flows.policy import train_policy
 from flows.recording import RunContext, recorded_run
 from flows.report import publish
@@ -125,14 +124,15 @@ def summarise(table: list[dict], derived: list[ScenarioManifest], counts: list[i
 
 @flow(name="loop", log_prints=True)
 def loop(manifest: str, policy: str | None = None, grid: str | None = None, episodes: PanelEpisodes | None = None,
-         worst: Annotated[int, Field(ge=1, le=8)] = 1, new_episodes: Episodes = 12, post_steps: Steps = 2000) -> dict:
+         worst: Worst = 1, new_episodes: Episodes = 12, post_steps: Steps = 2000) -> dict:
     """Close the loop once for ``policy`` (``bc:PATH``; default: a weak policy trained here on
     a few demonstrations) on the panel of ``manifest`` over ``grid``: the ``worst`` cells get
     ``new_episodes`` in all, in proportion to their failure rate."""
+    checks = LoopParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
     parent = load_manifest(Path(manifest))
-    bc.require_arm(parent)
+    checks.check_scenario(parent)
     chosen = resolve_grid(parent, grid, episodes)
     params = {"manifest": manifest, "policy": policy, "grid": grid, "episodes": episodes, "worst": worst,
               "new_episodes": new_episodes, "post_steps": post_steps}

@@ -11,6 +11,7 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
 from flows.params import PanelEpisodes
+from flows.params_policy import PanelsParams
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, progress, publish, write_json
 from flows.runners import task_runner
@@ -129,6 +130,7 @@ def panels(manifest: str, grid: str | None = None, episodes: PanelEpisodes | Non
            world_model: str | None = None, camera: str | None = None, guard: bool = True) -> dict:
     """A matched panel of ``manifest`` over ``grid`` (a YAML StressorGrid; default: one
     stressor at a time), ``episodes`` seeds per cell (default: the grid's)."""
+    PanelsParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root
     parent = load_manifest(Path(manifest))

@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Annotated
 
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
-from pydantic import Field
 
-from flows.params import PanelEpisodes, Seed
+from flows.params import Horizon, PanelEpisodes, Seed
+from flows.params_world import HELDOUT_FIRST_SEED, PhysicsParams
 from flows.recording import RunContext, recorded_run
 from flows.report import publish
 from schemas import paths
@@ -35,7 +34,6 @@ from tasks.world.geometry import PinholeCamera
 STAGE = "evaluate_physics"
 # `worldline simulate` uses seeds seed..seed+N-1 (the shipped manifests' seeds are under 100),
 # train-policy seed+1000.. and seed+2000..: 10,000 and up are seeds no training run has seen.
-HELDOUT_FIRST_SEED = 10_000
 
 render_heldout = task(evaluation.render_heldout, name="render-heldout", retries=1, cache_policy=NO_CACHE)
 predict_heldout = task(evaluation.predict_heldout, name="predict-heldout", cache_policy=NO_CACHE)
@@ -62,12 +60,13 @@ def _artifact_id(run: RunContext, path: Path, kind: str, attrs: dict) -> str:
 def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: str | None = None,
                      episodes: PanelEpisodes = 10,
                      first_seed: Seed = HELDOUT_FIRST_SEED, camera: str | None = None,
-                     horizon: Annotated[int, Field(ge=1, le=64)] = 4,
+                     horizon: Horizon = 4,
                      context: int | None = None, stride: int = 2, move_threshold_cm: float = 2.0,
                      shuffle_seed: int = 0) -> dict:
     """Evaluate ``world_model`` (a post-trained checkpoint folder or id; default the newest) on
     ``episodes`` held-out seeds from ``first_seed`` of ``manifest``: windows of ``context``
     latent frames (default the model's window less ``horizon``) predict ``horizon`` more."""
+    PhysicsParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
     scenario = manifests.load(Path(manifest))

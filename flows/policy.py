@@ -8,13 +8,12 @@ onwards, so neither overlaps the seeds panels use by default (seed, seed+1, ...)
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
 
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
-from pydantic import Field
 
-from flows.params import Episodes, Seed, Steps
+from flows.params import Episodes, Holdout, Seed, Steps
+from flows.params_policy import TrainPolicyParams
 from flows.recording import recorded_run
 from flows.report import markdown_table, publish
 from schemas import paths
@@ -44,12 +43,13 @@ def train(demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path, scenar
 
 @flow(name="train-policy", log_prints=True)
 def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, preset_name: str = "tiny", seed: Seed = 0,
-                 holdout: Annotated[int, Field(ge=0, le=10_000)] = 10) -> dict:
+                 holdout: Holdout = 10) -> dict:
     """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations."""
+    checks = TrainPolicyParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
     scenario = load_manifest(Path(manifest))
-    bc.require_arm(scenario)
+    checks.check_scenario(scenario)
     config = bc.TrainConfig(preset=preset_name, steps=steps, seed=seed)
     train_seeds = list(range(scenario.seed + TRAIN_OFFSET, scenario.seed + TRAIN_OFFSET + episodes))
     test_seeds = list(range(scenario.seed + HOLDOUT_OFFSET, scenario.seed + HOLDOUT_OFFSET + holdout))

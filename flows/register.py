@@ -6,6 +6,7 @@ from pathlib import Path
 
 from prefect import flow, task
 
+from flows.params_data import RegisterParams
 from flows.recording import recorded_run
 from flows.report import markdown_table, publish
 from schemas.settings import Settings
@@ -17,6 +18,7 @@ load_manifest = task(manifests.load, name="load-manifest")
 @flow(name="register", log_prints=True)
 def register(manifest_path: str) -> str:
     """Validate first (an invalid manifest writes nothing), then record the manifest and this run."""
+    RegisterParams.of(locals())  # every parameter check, for a deployment as for the CLI
     manifest = load_manifest(Path(manifest_path))
     with recorded_run("register", Settings(), manifest, source_uri=manifest_path,
                       params={"manifest": manifest_path}):

@@ -9,6 +9,7 @@ from prefect import flow, task
 from prefect.futures import as_completed
 
 from flows.params import Episodes
+from flows.params_data import SimulateParams
 from flows.recording import recorded_run
 from flows.report import markdown_table, progress, publish
 from flows.runners import task_runner
@@ -30,6 +31,7 @@ def simulate_episode(manifest, manifest_hash: str, index: int, root: Path):
 @flow(name="simulate", log_prints=True, task_runner=task_runner())
 def simulate(manifest: str, episodes: Episodes = 2) -> dict:
     """Episodes 0..N-1 of a manifest use seeds seed..seed+N-1; finished episodes are skipped."""
+    SimulateParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     scenario = load_manifest(Path(manifest))
     with recorded_run("simulate", settings, scenario, source_uri=manifest,

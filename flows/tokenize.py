@@ -6,13 +6,12 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
-from typing import Annotated
 
 import torch
 from prefect import flow, task
-from pydantic import Field
 
-from flows.params import Batch, Seed, Side, Steps, Weight
+from flows.params import Batch, EncodeFrames, FocusCrops, Seed, Side, Steps, Weight
+from flows.params_world import TokenizeParams
 from flows.recording import recorded_run
 from flows.report import markdown_table
 from flows.report import publish as publish_report
@@ -38,13 +37,14 @@ def decode_shard(path: Path, root: Path, uri: str, size: int, max_frames: int) -
 
 @flow(name="tokenize", log_prints=True)
 def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200, size: Side = 64,
-             batch_size: Batch = 4, seed: Seed = 0, max_encode_frames: Annotated[int, Field(ge=1)] = 129,
+             batch_size: Batch = 4, seed: Seed = 0, max_encode_frames: EncodeFrames = 129,
              crop: Side | None = None,
-             motion_weight: Weight = 0.0, focus_crops: Annotated[int, Field(ge=1, le=64)] = 1,
+             motion_weight: Weight = 0.0, focus_crops: FocusCrops = 1,
              init: str | None = None) -> dict:
     """Train tokenizer ``preset_name`` for ``steps`` on the clips of ``shards`` (on random
     ``crop`` x ``crop`` windows when given; weighting moving pixels and favouring crops that
     move when asked; continuing from checkpoint ``init`` when given), then tokenize every shard."""
+    TokenizeParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
     model_config = preset(preset_name)

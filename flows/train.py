@@ -7,13 +7,12 @@ phase is skipped on a re-run."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
 
 import torch
 from prefect import flow, task
-from pydantic import Field
 
-from flows.params import Batch, Seed, Share, Steps, Weight
+from flows.params import ActionTotals, Batch, Patch, Seed, Share, Steps, Weight, Window
+from flows.params_world import TrainParams
 from flows.recording import RunContext, recorded_run
 from flows.report import publish
 from models.world_model import WorldModelConfig, preset
@@ -107,10 +106,10 @@ def posttrain_phase(run: RunContext, sources: list, pre_id: str, pre_folder: Pat
 @flow(name="train", log_prints=True)
 def train(manifest: str, tokenizer: str | None = None, token_shards: str | None = None, preset_name: str = "tiny-wm",
           pretrain_steps: Steps = 200, posttrain_steps: Steps = 100, batch_size: Batch = 8,
-          window: Annotated[int, Field(ge=2, le=64)] | None = None,
-          camera: str | None = None, seed: Seed = 0, patch: Annotated[int, Field(ge=1, le=16)] | None = None,
+          window: Window | None = None,
+          camera: str | None = None, seed: Seed = 0, patch: Patch | None = None,
           change_weight: Weight = 0.0, self_condition: Share = 0.0,
-          action_totals: Annotated[int, Field(ge=0, le=8)] = 0, also: list[str] | None = None) -> dict:
+          action_totals: ActionTotals = 0, also: list[str] | None = None) -> dict:
     """Pre-train world model ``preset_name`` on ``tokenizer``'s token shards (or ``token_shards``),
     then post-train it with actions on the simulated episodes of ``manifest`` (a YAML, an
     episode folder or a manifest hash), every camera or only ``camera``. ``patch``: codes per
@@ -122,10 +121,12 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
     ``also``: more manifests (or episode folders, or hashes) whose episodes join post-training,
     each with its own manifest's text (e.g. the same scene at a noisier controller, so the model
     sees pushes that fail)."""
+    checks = TrainParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
     sources = [episode_folders(m, root) for m in [manifest, *(also or [])]]
     folders, scenario = [f for found, _ in sources for f in found], sources[0][1]
+    checks.check_episodes(folders[0])
     threads = min(2, torch.get_num_threads())
     with recorded_run("train", settings, scenario, source_uri=manifest if scenario is not None else None,
                       params={"manifest": manifest, "tokenizer": tokenizer, "token_shards": token_shards,

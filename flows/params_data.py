@@ -1,0 +1,35 @@
+"""Parameters of the flows that bring data in: register, simulate, corpus, curate."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from flows.params import Episodes, FlowParams, Fps, Height, Minutes, Seed, Width
+
+
+class RegisterParams(FlowParams):
+    manifest_path: str = Field(description="scenario manifest YAML")
+    cli_arguments = ("manifest_path",)
+
+
+class SimulateParams(FlowParams):
+    manifest: str = Field(description="scenario manifest YAML")
+    episodes: Episodes = Field(2, description="episodes (seeds seed..seed+N-1)")
+    cli_arguments = ("manifest",)
+    cli_paths = ("manifest",)
+
+
+class CorpusParams(FlowParams):
+    minutes: Minutes = Field(1.0, description="minutes of footage")
+    seed: Seed = Field(0, description="same seed, same videos and truth")
+    width: Width = 640
+    height: Height = 360
+    fps: Fps = 30.0
+
+
+class CurateParams(FlowParams):
+    inputs: list[str] = Field(description="video files or folders of videos")
+    manifest: str | None = Field(None, description="scenario manifest the footage belongs to")
+    config: str | None = Field(None, description="YAML overrides of CurateConfig")
+    cli_arguments = ("inputs",)
+    cli_paths = ("inputs", "manifest", "config")

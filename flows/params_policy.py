@@ -1,0 +1,91 @@
+"""Parameters of the panel and policy flows: panels, evaluate, train-policy, loop."""
+
+from __future__ import annotations
+
+from pydantic import Field, model_validator
+
+from flows.params import Episodes, FlowParams, Holdout, PanelEpisodes, Refused, Seed, Steps, Worst
+
+GRID = "stressor grid YAML (schemas/panel.py StressorGrid); default: nominal, clean, then one stressor at a time"
+
+
+class PanelsParams(FlowParams):
+    manifest: str = Field(description="scenario manifest YAML")
+    grid: str | None = Field(None, description=GRID)
+    episodes: PanelEpisodes | None = Field(None, description="seeds per cell (default: the grid's)")
+    world_model: str | None = Field(None, description="post-trained world-model checkpoint folder or id, for "
+                                                      "side-by-side rollouts")
+    camera: str | None = Field(None, description="camera shown (default: the first world-mounted one)")
+    guard: bool = Field(True, description="text pre-guard and face post-guard")
+    cli_arguments = ("manifest",)
+    cli_paths = ("manifest", "grid")
+
+
+class EvaluateParams(FlowParams):
+    manifest: str = Field(description="scenario manifest YAML")
+    policies: list[str] | None = Field(None, description="scripted | scripted:NOISE | bc:CHECKPOINT_FOLDER | "
+                                       "bc:CHECKPOINT_ID (repeat; default: scripted and scripted:0.8)")
+    grid: str | None = Field(None, description="stressor grid YAML (default: one stressor at a time)")
+    episodes: PanelEpisodes | None = Field(None, description="seeds per cell (default: the grid's)")
+    compare: list[str] | None = Field(None, description="another manifest whose panel is evaluated too (its "
+                                      "contract must match; repeat)")
+    world_model: str | None = Field(None, description="post-trained world-model checkpoint folder or id: verdicts "
+                                                      "on generated frames")
+    detector: bool = Field(True, description="also judge the simulator's renders with the frame detector")
+    guard: bool = True
+    cli_arguments = ("manifest",)
+    cli_paths = ("manifest", "grid", "compare")
+    cli_names = {"policies": "--policy"}
+    cli_hidden = ("guard",)
+
+
+def _drives_arms(scenario, manifest: str, what: str) -> None:
+    if scenario.embodiment.kind != "arm":
+        raise Refused(f"{manifest}: {what}; this manifest's embodiment is {scenario.embodiment.kind!r}")
+
+
+class TrainPolicyParams(FlowParams):
+    manifest: str = Field(description="scenario manifest YAML")
+    episodes: Episodes = Field(30, description="scripted demonstrations (seeds seed+1000...)")
+    steps: Steps = Field(3000, description="training steps")
+    preset_name: str = Field("tiny", description="policy network preset (models/bc_policy.py PRESETS)")
+    seed: Seed = 0
+    holdout: Holdout = Field(10, description="held-out seeds to measure success on (seed+2000...)")
+    cli_arguments = ("manifest",)
+    cli_paths = ("manifest",)
+    cli_names = {"preset_name": "--preset"}
+    cli_hidden = ("seed",)
+
+    @model_validator(mode="after")
+    def _known_preset(self):
+        from models.bc_policy import PRESETS
+
+        if self.preset_name not in PRESETS:
+            raise Refused(f"{{preset_name}}: unknown policy preset {self.preset_name!r}; known: "
+                          f"{', '.join(sorted(PRESETS))}")
+        return self
+
+    def check_scenario(self, scenario) -> None:
+        _drives_arms(scenario, self.manifest, "behaviour cloning drives arms")
+
+
+class LoopParams(FlowParams):
+    manifest: str = Field(description="scenario manifest YAML")
+    policy: str | None = Field(None, description="bc:CHECKPOINT_FOLDER or bc:CHECKPOINT_ID (default: a weak policy "
+                                                 "trained in-flow)")
+    grid: str | None = Field(None, description="stressor grid YAML (default: one stressor at a time)")
+    episodes: PanelEpisodes | None = Field(None, description="seeds per cell (default: the grid's)")
+    worst: Worst = Field(1, description="how many of the lowest-success cells to derive manifests from")
+    new_episodes: Episodes = Field(12, description="new episodes in all, weighted by failure rate")
+    post_steps: Steps = Field(2000, description="post-training steps")
+    cli_arguments = ("manifest",)
+    cli_paths = ("manifest", "grid")
+
+    @model_validator(mode="after")
+    def _behaviour_cloning(self):
+        if self.policy is not None and not self.policy.startswith("bc:"):
+            raise Refused(f"policy {self.policy!r}: the loop post-trains behaviour-cloning policies (bc:PATH or bc:ID)")
+        return self
+
+    def check_scenario(self, scenario) -> None:
+        _drives_arms(scenario, self.manifest, "the loop post-trains behaviour cloning, which drives arms")
