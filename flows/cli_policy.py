@@ -1,0 +1,102 @@
+"""`worldline panels`, `evaluate policies`, `train-policy` and `loop`: panels and policies."""
+
+from __future__ import annotations
+
+from flows import cli_checks as need
+from flows.cli_shell import app, command, evaluate_app, fail, out, print_rows, writing
+from flows.params_policy import EvaluateParams, LoopParams, PanelsParams, TrainPolicyParams
+
+
+@command(app, PanelsParams)
+def panels(params: PanelsParams) -> None:
+    """A matched panel: variants differing only in stressors, simulated, contact sheet + MP4 (Prefect flow `panels`)."""
+    parent = need.simulable(params.manifest)
+    need.grid(parent, params.grid, params.episodes)
+    folder = need.world_model(params.world_model) if params.world_model else None
+    from flows.panels import panels as panels_flow
+    from flows.panels import primary_camera
+
+    try:
+        primary_camera(parent, params.camera)
+    except ValueError as exc:
+        fail(f"--camera: {exc}")
+
+    writing()
+    try:
+        result = panels_flow(**params.model_copy(update={"world_model": folder}).model_dump())
+    except ValueError as exc:
+        fail(str(exc))
+    cells = ", ".join(f"{v['cell']} {sum(e['success'] for e in v['episodes'])}/{len(v['episodes'])}"
+                      for v in result["variants"])
+    out.print(f"panel {result['panel_id']}: {cells}; sheet {result['contact_sheet']}, video {result['video']}",
+              highlight=False)
+
+
+@command(app, TrainPolicyParams, "train-policy")
+def train_policy_cmd(params: TrainPolicyParams) -> None:
+    """Behaviour-clone the scripted controller into a small MLP policy (Prefect flow `train-policy`)."""
+    params.check_scenario(need.simulable(params.manifest))
+    from flows.policy import train_policy as train_flow
+
+    writing()
+    result = train_flow(**params.model_dump())
+    rate = result["held_out_success_rate"]
+    out.print(f"checkpoint {result['folder']}" + ("" if rate is None else f"; held-out success {rate:.2f}"),
+              highlight=False)
+
+
+@command(evaluate_app, EvaluateParams, "policies")
+def evaluate_policies_cmd(params: EvaluateParams) -> None:
+    """Policies on a panel: simulator and frame-detector success per stressor cell, their rank
+    correlation (Prefect flow `evaluate`); exit 2 when panel contracts differ."""
+    parent = need.simulable(params.manifest)
+    for other in params.compare or []:
+        need.simulable(other)
+    need.grid(parent, params.grid, params.episodes)
+    from tasks.panels.contract import PanelContractError
+
+    from flows.evaluate import DEFAULT_POLICIES, agreement_line, plan
+    from flows.evaluate import evaluate as evaluate_flow
+
+    specs, loaded = need.policies(params.policies or [])
+    folder = need.world_model(params.world_model) if params.world_model else None
+    try:  # the flow plans again; refusing here spares starting Prefect for nothing
+        plan([params.manifest, *(params.compare or [])], params.grid, params.episodes,
+             loaded or need.policies(list(DEFAULT_POLICIES))[1])
+    except PanelContractError as exc:
+        fail(str(exc))
+
+    writing()
+    try:
+        result = evaluate_flow(**params.model_copy(update={
+            "policies": specs or None, "compare": params.compare or [], "world_model": folder}).model_dump())
+    except PanelContractError as exc:
+        fail(str(exc))
+    rows = [(e["panel"], e["policy"], r["cell"], r["episodes"], *("-" if r[k] is None else f"{r[k]:.2f}"
+                                                                  for k in ("sim", "detector", "world")))
+            for e in result["evaluations"] for r in e["table"]]
+    print_rows(["panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model"], rows, "table",
+               title="success rate per stressor cell")
+    out.print("Spearman (simulator vs): " + ", ".join(f"{k} {'-' if v is None else f'{v:.2f}'}"
+                                                       for k, v in result["spearman"].items()), highlight=False)
+    for column, a in result["agreement"].items():
+        out.print(agreement_line(f"{column} vs simulator, per episode", a), highlight=False)
+
+
+@command(app, LoopParams, "loop")
+def loop_cmd(params: LoopParams) -> None:
+    """Failures back into data: the worst stressor cells become derived manifests, simulated,
+    curated and post-trained on; success per cell before and after (Prefect flow `loop`)."""
+    parent = need.simulable(params.manifest)
+    params.check_scenario(parent)
+    need.grid(parent, params.grid, params.episodes)
+    policy = need.policies([params.policy])[0][0] if params.policy is not None else None
+    from flows.loop import loop as loop_flow
+
+    writing()
+    result = loop_flow(**params.model_copy(update={"policy": policy}).model_dump())
+    fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    print_rows(["cell", "episodes", "before", "after", "targeted"],
+               [(r["cell"], r["episodes"], fmt(r["before"]), fmt(r["after"]), "yes" if r["targeted"] else "")
+                for r in result["table"]], "table", title="success rate per stressor cell, before and after")
+    out.print(f"checkpoint {result['checkpoint']}", highlight=False)

@@ -1,0 +1,177 @@
+"""The shell every `worldline` command runs in: its exit codes on errors a user can act on, the
+writer lock it holds, how it prints, and commands declared from a flow's parameter model
+(flows/params.py): each field an argument or option, with its help and bounds."""
+
+from __future__ import annotations
+
+import csv
+import errno
+import inspect
+import json
+import sys
+import types
+import typing
+from contextlib import ExitStack, contextmanager
+from pathlib import Path
+from typing import Annotated, Optional, Union
+
+import typer
+from rich.console import Console
+from rich.table import Table
+from typer.core import TyperGroup
+
+import flows  # noqa: F401  (sets PREFECT_HOME before anything imports prefect)
+from flows.params import FlowParams, ParamsError, Refused
+from schemas.errors import EXIT_ENVIRONMENT, EXIT_INVALID, WorldlineError
+from schemas.settings import Settings
+
+
+class Commands(TyperGroup):
+    """Every command ends with one line and its exit code, never a traceback, for the errors a
+    user can act on: a WorldlineError (raised anywhere, a flow included), a full disk, SIGTERM."""
+
+    def invoke(self, ctx):
+        from flows.ephemeral import exit_code
+
+        try:
+            with held:
+                return super().invoke(ctx)
+        except BaseException as exc:
+            code = exit_code(exc)  # after SIGINT or SIGTERM, whatever the interrupt surfaced as
+            if code is None and isinstance(exc, WorldlineError):
+                say(str(exc))
+                code = exc.exit_code
+            elif code is None and isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                say(f"disk full: {exc.filename or exc.strerror}")
+                code = EXIT_ENVIRONMENT
+            if code is None:
+                raise
+            raise typer.Exit(code) from None
+
+
+held = ExitStack()  # what a command holds until it ends (writing), released before its exit code is set
+out = Console()
+err = Console(stderr=True)
+app = typer.Typer(cls=Commands, add_completion=False, no_args_is_help=True)  # its help: flows/cli.py
+manifest_app = typer.Typer(no_args_is_help=True, help="Validate, hash and show scenario manifests.")
+evaluate_app = typer.Typer(no_args_is_help=True, help="Evaluate world models against the simulator, and policies.")
+
+
+def say(message: str) -> None:
+    err.print(message, markup=False, highlight=False, soft_wrap=True)
+
+
+def fail(message: str, code: int = EXIT_INVALID) -> None:
+    say(message)
+    raise typer.Exit(code)
+
+
+def refuse(exc: Exception) -> None:
+    """``fail`` with an error's message and its exit code (2 unless it is a WorldlineError)."""
+    fail(str(exc), exc.exit_code if isinstance(exc, WorldlineError) else EXIT_INVALID)
+
+
+@contextmanager
+def checked(model: type[FlowParams]):
+    """A model's check on data (a manifest, episodes) refused in one line, naming options."""
+    try:
+        yield
+    except Refused as exc:
+        fail(exc.named(model.labels(cli=True)))
+
+
+def writing() -> None:
+    """For the rest of this command: the data root's writer lock (taken now, before Prefect
+    starts; exit 4 after WORLDLINE_LOCK_TIMEOUT seconds of waiting), the temporary Prefect server
+    stopped on the way out, and Ctrl-C or SIGTERM ending the command within seconds
+    (flows/ephemeral.py)."""
+    from flows import ephemeral
+    from warehouse import lock
+
+    settings = Settings()
+    held.enter_context(ephemeral.interrupts_handled())
+    held.enter_context(lock.writer(settings.data_root, settings.lock_timeout, on_wait=lambda holder: say(
+        f"{settings.data_root}: another worldline process ({holder}) is writing; waiting up to "
+        f"{settings.lock_timeout:g} s")))
+    ephemeral.guard_prefect()
+    held.enter_context(ephemeral.servers_stopped_on_exit())
+
+
+def print_rows(cols: list[str], rows: list[tuple], fmt: str, title: str | None = None) -> None:
+    if fmt == "json":
+        out.print_json(json.dumps([dict(zip(cols, r)) for r in rows], default=str))
+    elif fmt == "csv":
+        writer = csv.writer(sys.stdout)
+        writer.writerow(cols)
+        writer.writerows(rows)
+    else:
+        table = Table(title=title)
+        for c in cols:
+            table.add_column(c, overflow="fold")
+        for r in rows:
+            table.add_row(*("" if v is None else str(v) for v in r))
+        out.print(table)
+
+
+def _plain(annotation, metadata: list) -> tuple[object, dict]:
+    """(the type typer reads, its bounds as typer's min and max) of a field: Optional and
+    Annotated peeled off."""
+    optional = typing.get_origin(annotation) in (Union, types.UnionType)
+    if optional:
+        annotation = next(a for a in typing.get_args(annotation) if a is not type(None))
+    if typing.get_origin(annotation) is Annotated:
+        annotation, *extra = typing.get_args(annotation)
+        metadata = [*metadata, *(m for e in extra for m in getattr(e, "metadata", [e]))]
+    bounds = {key: getattr(m, attr) for m in metadata for key, attr in (("min", "ge"), ("max", "le"))
+              if getattr(m, attr, None) is not None}
+    return (Optional[annotation] if optional else annotation), bounds
+
+
+def _as_path(hint):
+    return {str: Path, Optional[str]: Optional[Path], list[str]: list[Path],
+            Optional[list[str]]: Optional[list[Path]]}[hint]
+
+
+def _as_str(value):
+    return [str(v) for v in value] if isinstance(value, list) else None if value is None else str(value)
+
+
+def command(group: typer.Typer, model: type[FlowParams], name: str | None = None):
+    """Register ``body(params)`` as a command of ``group`` whose arguments and options are the
+    fields of ``model`` (but its ``cli_hidden`` ones, left at their defaults); the values given
+    are checked by the model, a refusal in one line with exit 2."""
+
+    def register(body):
+        parameters, fields = [], {}
+        for field, info in model.model_fields.items():
+            if field in model.cli_hidden:
+                continue
+            hint, bounds = _plain(info.annotation, info.metadata)
+            if field in model.cli_paths:  # typed as paths, given to the flow as their str()
+                hint = _as_path(hint)
+            if field in model.cli_arguments:
+                key, default = field, typer.Argument(... if info.is_required() else info.default,
+                                                     help=info.description)
+            else:
+                option = model.option(field)
+                key = option[2:].replace("-", "_")
+                decl = f"{option}/--no-{option[2:]}" if hint is bool else option
+                default = typer.Option(info.default, decl, help=info.description, **bounds)
+            fields[key] = field
+            parameters.append(inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=hint))
+
+        def run(**given):
+            values = {fields[k]: _as_str(v) if fields[k] in model.cli_paths else v for k, v in given.items()}
+            try:
+                params = model.of(values, cli=True)
+            except ParamsError as exc:
+                fail(str(exc))
+            with checked(model):
+                return body(params)
+
+        run.__signature__ = inspect.Signature(parameters)
+        run.__name__, run.__doc__ = body.__name__, body.__doc__
+        group.command(name)(run)
+        return body
+
+    return register

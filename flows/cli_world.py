@@ -1,0 +1,88 @@
+"""`worldline tokenize`, `train` and `evaluate physics`: the world model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from flows import cli_checks as need
+from flows.cli_shell import app, command, evaluate_app, fail, out, refuse, writing
+from flows.params_world import PhysicsParams, TokenizeParams, TrainParams
+from schemas.settings import Settings
+
+
+def _is_yaml(name: str) -> bool:
+    return Path(name).suffix in (".yaml", ".yml")
+
+
+@command(app, TokenizeParams)
+def tokenize(params: TokenizeParams) -> None:
+    """Train a video tokenizer on curated shards and write token shards (Prefect flow `tokenize`)."""
+    if params.init:
+        need.tokenizer(params.init, variant=None)
+    from flows.tokenize import shard_files
+    from flows.tokenize import tokenize as tokenize_flow
+
+    try:
+        shard_files(params.shards, Settings().data_root.resolve())
+    except FileNotFoundError as exc:
+        fail(str(exc))
+    writing()
+    try:
+        result = tokenize_flow(**params.model_dump())
+    except (FileNotFoundError, ValueError) as exc:
+        refuse(exc)
+    psnr = f", train PSNR {result['final_psnr']:.2f} dB" if result["final_psnr"] is not None else " (already trained)"
+    out.print(f"checkpoint {result['checkpoint_id']}{psnr}; {len(result['token_shards'])} new token shards "
+              f"from {result['clips']} clips", highlight=False)
+
+
+@command(app, TrainParams)
+def train(params: TrainParams) -> None:
+    """Pre-train a world model on token shards, post-train it with actions on episodes (Prefect flow `train`)."""
+    if _is_yaml(params.manifest):
+        need.manifest(params.manifest)
+    if params.tokenizer:
+        need.tokenizer(params.tokenizer)
+    from flows.train import episode_folders
+    from flows.train import train as train_flow
+
+    for extra in params.also or []:
+        if _is_yaml(extra):
+            need.manifest(extra)
+    try:
+        folders, _ = episode_folders(params.manifest, Settings().data_root.resolve())
+        for extra in params.also or []:
+            episode_folders(extra, Settings().data_root.resolve())
+    except FileNotFoundError as exc:
+        refuse(exc)
+    params.check_episodes(folders[0])
+    writing()
+    try:
+        result = train_flow(**params.model_dump())
+    except (FileNotFoundError, ValueError) as exc:
+        refuse(exc)
+    done = {True: "trained", False: "already trained"}
+    out.print(f"pre-trained {result['pretrain_checkpoint_id']} ({done[result['pretrained']]}), post-trained "
+              f"{result['posttrain_checkpoint_id']} ({done[result['posttrained']]}) on {result['episodes']} episodes",
+              highlight=False)
+
+
+@command(evaluate_app, PhysicsParams, "physics")
+def evaluate_physics_cmd(params: PhysicsParams) -> None:
+    """A world model against MuJoCo on held-out seeds: per-horizon PSNR, SSIM, package position
+    error and IoU beside copy-last-frame and the tokenizer's reconstruction, true against
+    shuffled actions (Prefect flow `evaluate-physics`)."""
+    need.simulable(params.manifest)
+    folder = need.world_model(params.world_model)
+    tokenizer = need.tokenizer(params.tokenizer) if params.tokenizer else None
+    from flows.physics import evaluate_physics
+
+    writing()
+    try:
+        resolved = params.model_copy(update={"world_model": folder, "tokenizer": tokenizer})
+        result = evaluate_physics(**resolved.model_dump())
+    except (FileNotFoundError, ValueError) as exc:
+        refuse(exc)
+    checks = ", ".join(f"{k} {'passed' if v else 'failed'}" for k, v in result["checks"].items())
+    out.print(f"evaluation {result['evaluation_id']} ({result['windows']} windows, {result['moving']} with the "
+              f"package moving): {checks}; table and plots under {result['folder']}", highlight=False)

@@ -1,0 +1,128 @@
+"""Each flow's parameter model (flows/params_*.py) holds every check of its parameters, and the
+CLI and the deployments share it: the same bad value is refused by the `worldline` command and
+by the flow as a deployment run calls it (Prefect's validation of the parameters, then the
+flow's first line), without a Prefect server."""
+
+import inspect
+
+import pytest
+from prefect.exceptions import ParameterTypeError
+from typer.testing import CliRunner
+
+from flows import cli_world
+from flows.cli import app
+from flows.corpus import corpus
+from flows.curate import curate
+from flows.evaluate import evaluate
+from flows.loop import loop
+from flows.panels import panels
+from flows.params import ParamsError, Refused
+from flows.params_data import CorpusParams, CurateParams, RegisterParams, SimulateParams
+from flows.params_policy import EvaluateParams, LoopParams, PanelsParams, TrainPolicyParams
+from flows.params_world import PhysicsParams, TokenizeParams, TrainParams
+from flows.physics import evaluate_physics
+from flows.policy import train_policy
+from flows.register import register
+from flows.simulate import simulate
+from flows.tokenize import tokenize
+from flows.train import train
+from tasks.manifests import load
+
+from tests.support import MANIFESTS
+
+runner = CliRunner()
+PUSH = str(MANIFESTS / "conveyor_push.yaml")
+BASE = str(MANIFESTS / "mobile_rig_aisle.yaml")  # a mobile base: no arm
+
+MODELS = [(register, RegisterParams), (simulate, SimulateParams), (corpus, CorpusParams), (curate, CurateParams),
+          (tokenize, TokenizeParams), (train, TrainParams), (evaluate_physics, PhysicsParams), (panels, PanelsParams),
+          (evaluate, EvaluateParams), (train_policy, TrainPolicyParams), (loop, LoopParams)]
+
+# (flow, the parameters a deployment passes, the same value on the command line, what both say;
+# a pair where the CLI names the option and the flow the parameter)
+CHECKS = [
+    (tokenize, {"shards": "x", "preset_name": "huge"}, ["tokenize", "x", "--preset", "huge"],
+     "unknown tokenizer preset 'huge'"),
+    (tokenize, {"shards": "x", "size": 36}, ["tokenize", "x", "--size", "36"],
+     "36 is not a multiple of tiny-dv4x8x8's spatial compression 8"),
+    (tokenize, {"shards": "x", "crop": 20}, ["tokenize", "x", "--crop", "20"],
+     "20 is not a multiple of tiny-dv4x8x8's spatial compression 8"),
+    (tokenize, {"shards": "x", "crop": 128}, ["tokenize", "x", "--crop", "128"], "128 is larger than"),
+    (train, {"manifest": PUSH, "preset_name": "huge"}, ["train", PUSH, "--preset", "huge"],
+     "unknown world model preset 'huge'"),
+    (train_policy, {"manifest": PUSH, "preset_name": "huge"}, ["train-policy", PUSH, "--preset", "huge"],
+     "unknown policy preset 'huge'"),
+    (loop, {"manifest": PUSH, "policy": "scripted"}, ["loop", PUSH, "--policy", "scripted"],
+     "policy 'scripted': the loop post-trains behaviour-cloning policies"),
+    (simulate, {"manifest": PUSH, "episodes": 0}, ["simulate", PUSH, "--episodes", "0"],
+     ("'--episodes': Input should be greater than or equal to 1",
+      "episodes: Input should be greater than or equal to 1")),
+    (corpus, {"minutes": 0.01}, ["corpus", "--minutes", "0.01"],
+     ("'--minutes': Input should be greater than or equal to 0.05",
+      "minutes: Input should be greater than or equal to 0.05")),
+    (train, {"manifest": PUSH, "action_totals": 9}, ["train", PUSH, "--action-totals", "9"],
+     ("'--action-totals': Input should be less than or equal to 8",
+      "action_totals: Input should be less than or equal to 8")),
+    (panels, {"manifest": PUSH, "episodes": 1001}, ["panels", PUSH, "--episodes", "1001"],
+     ("'--episodes': Input should be less than or equal to 1000",
+      "episodes: Input should be less than or equal to 1000")),
+    (evaluate_physics, {"manifest": PUSH, "horizon": 0}, ["evaluate", "physics", PUSH, "--horizon", "0"],
+     ("'--horizon': Input should be greater than or equal to 1",
+      "horizon: Input should be greater than or equal to 1")),
+    (loop, {"manifest": PUSH, "worst": 9}, ["loop", PUSH, "--worst", "9"],
+     ("'--worst': Input should be less than or equal to 8",
+      "worst: Input should be less than or equal to 8")),
+]
+
+
+@pytest.mark.parametrize("flow, params, args, said", CHECKS, ids=lambda v: v.name if hasattr(v, "fn") else None)
+def test_each_check_refuses_a_value_from_the_cli_and_from_a_deployment(flow, params, args, said, data_root):
+    cli_said, flow_said = said if isinstance(said, tuple) else (said, said)
+    result = runner.invoke(app, args, terminal_width=400)
+    assert result.exit_code == 2 and cli_said in " ".join(result.output.split()), result.output
+    assert not (data_root / "lineage.duckdb").exists()
+
+    try:  # a deployment run: Prefect validates the parameters against the signature, then the flow runs
+        validated = flow.validate_parameters(params)
+    except ParameterTypeError as exc:
+        assert flow_said in str(exc)
+        validated = params
+    with pytest.raises(ParamsError) as refused:  # the flow's first line, before it reads or writes anything
+        flow.fn(**validated)
+    assert flow_said in str(refused.value) and "\n" not in str(refused.value)
+    assert not (data_root / "lineage.duckdb").exists()
+
+
+def test_the_cli_names_options_and_a_flow_names_its_parameters():
+    with pytest.raises(ParamsError, match=r"^crop: 128 is larger than size 64$"):
+        tokenize.fn(shards="x", crop=128)
+    result = runner.invoke(app, ["tokenize", "x", "--crop", "128"])
+    assert "--crop: 128 is larger than --size 64" in result.output
+    with pytest.raises(ParamsError, match=r"^preset_name: unknown"):
+        train.fn(manifest=PUSH, preset_name="huge")
+    assert "--preset: unknown" in runner.invoke(app, ["train", PUSH, "--preset", "huge"]).output
+
+
+@pytest.mark.parametrize("flow, model", [(train_policy, TrainPolicyParams), (loop, LoopParams)])
+def test_behaviour_cloning_needs_an_arm_from_the_cli_and_in_the_flow(flow, model, data_root):
+    args = ["train-policy" if flow is train_policy else "loop", BASE]
+    result = runner.invoke(app, args, terminal_width=400)
+    assert result.exit_code == 2 and "drives arms" in result.output, result.output
+    with pytest.raises(Refused, match="drives arms"):  # the check the flow makes on the manifest it loads
+        model.of(flow.validate_parameters({"manifest": BASE})).check_scenario(load(MANIFESTS / "mobile_rig_aisle.yaml"))
+    assert "check_scenario(" in inspect.getsource(flow.fn)
+
+
+def test_train_checks_its_episodes_in_the_flow_as_in_the_cli():
+    assert "check_episodes(" in inspect.getsource(train.fn)
+    assert "check_episodes(" in inspect.getsource(cli_world.train)
+
+
+@pytest.mark.parametrize("flow, model", MODELS, ids=lambda v: v.name if hasattr(v, "fn") else v.__name__)
+def test_each_flow_validates_with_a_model_of_its_very_parameters(flow, model):
+    signature = inspect.signature(flow.fn).parameters
+    assert list(signature) and set(signature) == set(model.model_fields)
+    for name, parameter in signature.items():
+        field = model.model_fields[name]
+        assert parameter.default == (inspect.Parameter.empty if field.is_required() else field.default), name
+    assert f"{model.__name__}.of(locals())" in inspect.getsource(flow.fn)
