@@ -14,9 +14,14 @@ ever sees part of a batch, and no reader of the snapshot holds up the writer.
 
 A copy keeps the main file's size and modification time, so a snapshot is *current* when those
 still agree and no write-ahead log holds rows it lacks. `Warehouse(read_only=True)` reads the
-snapshot when it is current, and when a writer holds the main file (then it is at most a few
-seconds behind); otherwise (no snapshot, or rows written since by a process that died) it reads
-the main file as before. `query` is what ``worldline sql`` runs.
+snapshot when it is current, and when a writer (this process or another) holds the main file
+(then it is at most a few seconds behind); otherwise (no snapshot, or rows written since by a
+process that died) it reads the main file as before. `query` is what ``worldline sql`` runs.
+
+The copy reads the main file through a descriptor the writer keeps open (`Publisher`): DuckDB's
+lock is a POSIX record lock, which the kernel drops when its process closes any descriptor of
+the file, so anything in a writer's process that opens and closes ``lineage.duckdb`` lets other
+processes in.
 """
 
 from __future__ import annotations
