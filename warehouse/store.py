@@ -27,12 +27,14 @@ from typing import Any
 import duckdb
 import pyarrow as pa
 
-from schemas import SCHEMA_VERSION
 from schemas.errors import Busy, EnvironmentFault, NotBuilt
 from schemas.records import LineageBatch, Record, RunRecord
 from warehouse import snapshot
 
 # Column order of each table as the writer fills it; JSON columns are written as text.
+# The warehouse file layout's version (not the manifests' schemas.SCHEMA_VERSION): 2 added COMMENT ON text.
+SCHEMA_VERSION = 2
+
 COLUMNS: dict[str, tuple[str, ...]] = {
     "manifests": ("manifest_hash", "name", "schema_version", "body", "source_uri", "parent_hash"),
     "stage_runs": ("stage_run_id", "run_id", "stage", "input_key", "manifest_hash", "status",

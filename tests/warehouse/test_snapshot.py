@@ -14,7 +14,7 @@ from pathlib import Path
 import duckdb
 import pytest
 
-from schemas import SCHEMA_VERSION
+from warehouse.store import SCHEMA_VERSION
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch
 from warehouse import snapshot
 from warehouse.store import Warehouse, WarehouseError, WarehouseMissing, comments

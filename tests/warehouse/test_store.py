@@ -7,7 +7,7 @@ from pathlib import Path
 import duckdb
 import pytest
 
-from schemas import SCHEMA_VERSION
+from warehouse.store import SCHEMA_VERSION
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord, RejectionRecord, RunRecord
 from warehouse import store
 from warehouse.store import Warehouse, WarehouseError
