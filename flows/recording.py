@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from flows import ephemeral
+from flows import announce, ephemeral
 from schemas.hashing import stable_id
 from schemas.manifest import ScenarioManifest
 from schemas.records import LineageBatch, RunRecord, StageRunRecord
@@ -164,27 +164,18 @@ def _recorded(flow: str, settings: Settings, manifest: ScenarioManifest | None, 
             yield ctx
         except BaseException as exc:
             warehouse.finish_run(run_id, "failed", failure_message(exc))
-            _emit_end(lineage_events, warehouse, ctx, "failed", failure_message(exc))
+            announce.finished(lineage_events, warehouse, ctx, "failed", failure_message(exc))
             raise
         message = ctx.message
         if ctx.failures and not message:
             message = f"{len(ctx.failures)} input(s) failed: " + "; ".join(ctx.failures)[:1800]
         warehouse.finish_run(run_id, ctx.status, message)
-        _emit_end(lineage_events, warehouse, ctx, ctx.status, message)
+        announce.finished(lineage_events, warehouse, ctx, ctx.status, message)
     finally:
         if "on_forced_exit" in locals():
             ephemeral.before_forced_exit.remove(on_forced_exit)
         _LIVE.discard(run_id)
         warehouse.close()
-
-
-def _emit_end(sender, warehouse: Warehouse, ctx: RunContext, status: str, message: str | None) -> None:
-    """The run's OpenLineage COMPLETE or FAIL event, with the datasets its lineage rows name."""
-    def build():
-        inputs, outputs = openlineage.run_datasets(warehouse, ctx.run_id)
-        return openlineage.event(openlineage.end_state(status), ctx.run_id, ctx.flow, ctx.settings.data_root,
-                                 ctx.manifest_hash, status, message, inputs, outputs)
-    openlineage.emit(sender, build)
 
 
 def _close_on_forced_exit(warehouse: Warehouse, run_id: str) -> None:

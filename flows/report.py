@@ -13,7 +13,8 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-from prefect.artifacts import create_markdown_artifact, create_progress_artifact, update_progress_artifact
+from prefect.artifacts import (create_image_artifact, create_link_artifact, create_markdown_artifact,
+                               create_progress_artifact, update_progress_artifact)
 
 from tasks.tables import markdown_table  # noqa: F401  (the flows' reports build tables with it)
 
@@ -23,6 +24,22 @@ def publish(flow: str, title: str, body: str, description: str) -> str:
     text = f"## {flow}: {title}\n\n{body}"
     create_markdown_artifact(markdown=text, key=f"{flow}-summary", description=description)
     return text
+
+
+def publish_page(warehouse, run_id: str, flow: str, data_root: Path) -> Path:
+    """The run's HTML report page (tasks/report) written under ``<data_root>/reports/`` and
+    published as a Prefect link artifact, its pictures as image artifacts."""
+    from tasks.report import default_path, write_report
+
+    page = default_path(data_root, run_id)
+    images = page.with_suffix("")
+    write_report(warehouse, run_id, page, data_root=data_root, images_dir=images)
+    create_link_artifact(link=page.resolve().as_uri(), link_text=f"{flow} run {run_id[:12]}: report page",
+                         key=f"{flow}-report", description="the run's tables, plots, contact sheets and lineage")
+    for png in sorted(images.glob("*.png")):
+        create_image_artifact(image_url=png.resolve().as_uri(), key=f"{flow}-{png.stem}"[:100],
+                              description=f"{flow}: {png.stem}")
+    return page
 
 
 class Progress:

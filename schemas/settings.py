@@ -36,6 +36,9 @@ class Settings(BaseSettings):
     lock_timeout: float = Field(60.0, ge=0, le=86_400, description="seconds a writer waits for another process "
                                 "writing to the same data root (or holding the warehouse) before it gives up, exit 4")
 
+    report_pages: bool = Field(True, description="each flow run writes its HTML report page "
+                               "(<data_root>/reports/<run id>.html) and publishes it as Prefect artifacts")
+
     @property
     def warehouse_path(self) -> Path:
         return self.warehouse or self.data_root / paths.WAREHOUSE_FILE

@@ -60,9 +60,11 @@ def check_valid(event: dict) -> None:
     assert event["schemaURL"].startswith("https://openlineage.io/spec/")
 
 
-def test_each_flow_run_emits_start_and_complete_with_its_lineage(prefect_harness, data_root):
+def test_each_flow_run_emits_start_and_complete_with_its_lineage(prefect_harness, data_root, monkeypatch):
     from flows.corpus import corpus
     from flows.curate import curate
+
+    monkeypatch.setenv("WORLDLINE_REPORT_PAGES", "true")  # (off for the rest of the suite: tests/conftest.py)
 
     corpus(minutes=0.3, seed=4, width=128, height=72)
     curate([str(data_root / "corpus")])
@@ -86,6 +88,9 @@ def test_each_flow_run_emits_start_and_complete_with_its_lineage(prefect_harness
     inputs = {d["facets"]["worldline"]["kind"] for d in end["inputs"]}
     assert "raw_video" in inputs and not inputs & {"clip", "shard"}
     assert all(Path(d["name"]).is_file() for d in end["inputs"] + end["outputs"])
+    # Each run also wrote its report page (flows/announce.py), the curate run's with its clips.
+    page = data_root / "reports" / f"{runs[1][0]}.html"
+    assert page.is_file() and "<img" in page.read_text() and (data_root / "reports" / runs[0][0]).with_suffix(".html").is_file()
 
 
 def test_a_failed_run_emits_fail_with_the_error(data_root):
