@@ -8,9 +8,9 @@ same checks as the CLI, whose options are declared from the model's fields (flow
 from __future__ import annotations
 
 import re
-from typing import Annotated, ClassVar, Mapping
+from typing import Annotated, ClassVar, Literal, Mapping
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 Episodes = Annotated[int, Field(ge=1, le=10_000, description="episodes or seeds")]
 PanelEpisodes = Annotated[int, Field(ge=1, le=1000, description="seeds per stressor cell")]
@@ -90,3 +90,31 @@ class FlowParams(BaseModel):
         where = ".".join(str(p) for p in first["loc"])
         name = cls.labels(cli).get(where, where)
         return f"{name}: {first['msg']}" + (f" (got {first['input']!r})" if "input" in first else "")
+
+
+class ComputeParams(FlowParams):
+    """Where a training flow runs (``tasks.device.Runtime``); none of it enters a checkpoint id."""
+
+    device: str | None = Field(None, description="auto | cpu | cuda | cuda:N (default: $WORLDLINE_DEVICE, else auto)")
+    precision: Literal["fp32", "bf16"] = Field("fp32", description="bf16: bfloat16 autocast (CUDA only)")
+    compile_model: bool = Field(False, description="torch.compile(mode='reduce-overhead'): CUDA graphs")
+
+    @model_validator(mode="after")
+    def _device_is_there(self):
+        from tasks.device import DeviceError
+
+        try:
+            device = self.runtime().torch_device()
+        except ValidationError as exc:  # a device name Runtime does not know
+            raise Refused(f"{{device}}: {exc.errors()[0]['msg'].removeprefix('Value error, ')}") from None
+        except DeviceError as exc:
+            raise Refused(f"{{device}}: {str(exc).removeprefix(f'--device {self.device}: ')}") from None
+        if self.precision == "bf16" and device.type != "cuda":
+            raise Refused(f"{{precision}}: bf16 runs only on a CUDA device ({{device}} gives {device})")
+        return self
+
+    def runtime(self):
+        from tasks.device import Runtime
+
+        chosen = {"device": self.device} if self.device else {}
+        return Runtime(**chosen, precision=self.precision, compile=self.compile_model)

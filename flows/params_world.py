@@ -6,7 +6,7 @@ from pathlib import Path
 
 from pydantic import Field, model_validator
 
-from flows.params import (ActionTotals, Batch, EncodeFrames, FlowParams, FocusCrops, Horizon, PanelEpisodes, Patch,
+from flows.params import (ActionTotals, Batch, ComputeParams, EncodeFrames, FlowParams, FocusCrops, Horizon, PanelEpisodes, Patch,
                           Refused, Seed, Share, Side, Steps, Weight, Window)
 
 HELDOUT_FIRST_SEED = 10_000  # the first held-out seed: never one the world model trained on
@@ -17,7 +17,7 @@ def _known(presets: dict, name: str, field: str, what: str) -> None:
         raise Refused(f"{{{field}}}: unknown {what} preset {name!r}; known: {', '.join(sorted(presets))}")
 
 
-class TokenizeParams(FlowParams):
+class TokenizeParams(ComputeParams):
     shards: str = Field(description="a folder of curated shards, or a manifest hash (12+ hex digits)")
     preset_name: str = Field("tiny-dv4x8x8", description="tokenizer preset (models/tokenizer.py PRESETS)")
     steps: Steps = Field(200, description="training steps")
@@ -32,7 +32,7 @@ class TokenizeParams(FlowParams):
                                                    "trained on")
     init: str | None = Field(None, description="continue from this tokenizer checkpoint (folder or id; same preset)")
     cli_arguments = ("shards",)
-    cli_names = {"preset_name": "--preset", "batch_size": "--batch"}
+    cli_names = {"preset_name": "--preset", "batch_size": "--batch", "compile_model": "--compile"}
     cli_hidden = ("seed", "max_encode_frames")
 
     @model_validator(mode="after")
@@ -50,7 +50,7 @@ class TokenizeParams(FlowParams):
         return self
 
 
-class TrainParams(FlowParams):
+class TrainParams(ComputeParams):
     manifest: str = Field(description="manifest YAML whose simulated episodes post-train the model (or an episode "
                                       "folder, or a manifest hash)")
     tokenizer: str | None = Field(None, description="tokenizer checkpoint folder or id; default the newest discrete "
@@ -77,7 +77,7 @@ class TrainParams(FlowParams):
                                    "episodes join post-training; repeatable")
     cli_arguments = ("manifest",)
     cli_names = {"token_shards": "--tokens", "preset_name": "--preset", "pretrain_steps": "--steps",
-                 "posttrain_steps": "--post-steps", "batch_size": "--batch"}
+                 "posttrain_steps": "--post-steps", "batch_size": "--batch", "compile_model": "--compile"}
     cli_hidden = ("seed",)
 
     @model_validator(mode="after")

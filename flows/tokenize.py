@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Literal
 
 import torch
 from prefect import flow, task
@@ -40,11 +41,13 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
              batch_size: Batch = 4, seed: Seed = 0, max_encode_frames: EncodeFrames = 129,
              crop: Side | None = None,
              motion_weight: Weight = 0.0, focus_crops: FocusCrops = 1,
-             init: str | None = None) -> dict:
+             init: str | None = None, device: str | None = None, precision: Literal["fp32", "bf16"] = "fp32",
+             compile_model: bool = False) -> dict:
     """Train tokenizer ``preset_name`` for ``steps`` on the clips of ``shards`` (on random
     ``crop`` x ``crop`` windows when given; weighting moving pixels and favouring crops that
-    move when asked; continuing from checkpoint ``init`` when given), then tokenize every shard."""
-    TokenizeParams.of(locals())  # every parameter check, for a deployment as for the CLI
+    move when asked; continuing from checkpoint ``init`` when given), then tokenize every shard,
+    on ``device`` (``tasks.device``: none of it enters the checkpoint's id)."""
+    runtime = TokenizeParams.of(locals()).runtime()  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
     model_config = preset(preset_name)
@@ -77,7 +80,8 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
         stage = run.stage(STAGE_TRAIN, key, [folder / tokens.WEIGHTS_FILE], manifest_hash=mh)
         if not stage.done:
             history, params = train(all_clips, config, folder, {"checkpoint_id": checkpoint_id, "init": init_id,
-                                                                "shards": [u for _, u, _, _ in known]}, init_folder)
+                                                                "shards": [u for _, u, _, _ in known]}, init_folder,
+                                    runtime)
             batch = tokens.checkpoint_lineage(
                 checkpoint_id, folder, root, [s for _, _, s, _ in known], history, stage.id, mh,
                 {"preset": preset_name, "variant": model_config.variant, "steps": steps, "size": size,

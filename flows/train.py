@@ -7,6 +7,7 @@ phase is skipped on a re-run."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import torch
 from prefect import flow, task
@@ -19,6 +20,7 @@ from models.world_model import WorldModelConfig, preset
 from schemas import paths
 from schemas.hashing import content_hash, stable_id
 from schemas.settings import Settings
+from tasks.device import Runtime
 from tasks.lookup import verified_checkpoint
 from tasks.world import checkpoints, data, inputs, phases
 from tasks.world.inputs import episode_folders, uri
@@ -36,7 +38,8 @@ posttrain = task(phases.posttrain, name="posttrain-world-model")
 
 
 def pretrain_phase(run: RunContext, tok_folder: Path, tok_id: str, shards: list, sequences: list, size: int,
-                   model_config: WorldModelConfig, config: WorldTrainConfig, preset_name: str) -> tuple[str, Path, list]:
+                   model_config: WorldModelConfig, config: WorldTrainConfig, preset_name: str,
+                   runtime: Runtime | None = None) -> tuple[str, Path, list]:
     """(checkpoint id, folder, history: empty when done before) of pre-training on token sequences
     with their captions."""
     root = run.settings.data_root.resolve()
@@ -52,7 +55,8 @@ def pretrain_phase(run: RunContext, tok_folder: Path, tok_id: str, shards: list,
         return pre_id, folder, []
     history, params = pretrain(sequences, model_config, config, folder,
                                {"checkpoint_id": pre_id, "tokenizer_id": tok_id, "size": size,
-                                "tokenizer": uri(tok_folder, root), "token_shards": [uri(p, root) for p, _, _ in shards]})
+                                "tokenizer": uri(tok_folder, root), "token_shards": [uri(p, root) for p, _, _ in shards]},
+                               runtime)
     stage.finish(len(sequences), 1, checkpoints.checkpoint_lineage(
         pre_id, folder, root, [(s, "trained_on") for s in shard_ids] + [(tok_id, "trained_on")],
         history, stage.id, mh, {"model": "world_model", "phase": "pretrain", "preset": preset_name,
@@ -65,7 +69,7 @@ def pretrain_phase(run: RunContext, tok_folder: Path, tok_id: str, shards: list,
 
 def posttrain_phase(run: RunContext, sources: list, pre_id: str, pre_folder: Path, tok_folder: Path, tok_id: str,
                     size: int, camera: str | None, model_config: WorldModelConfig, config: WorldTrainConfig,
-                    preset_name: str) -> tuple[str, Path, list, int]:
+                    preset_name: str, runtime: Runtime | None = None) -> tuple[str, Path, list, int]:
     """(checkpoint id, folder, history, episode videos) of post-training with actions on the
     episodes of ``sources``, from the pre-trained weights."""
     root = run.settings.data_root.resolve()
@@ -90,7 +94,7 @@ def posttrain_phase(run: RunContext, sources: list, pre_id: str, pre_folder: Pat
     history, params = posttrain(pre_folder, sequences, config, folder,
                                 {"checkpoint_id": post_id, "pretrained_id": pre_id, "tokenizer_id": tok_id,
                                  "size": size, "episodes": [uri(f, root) for f in folders],
-                                 "camera": camera, "tokenizer": uri(tok_folder, root)})
+                                 "camera": camera, "tokenizer": uri(tok_folder, root)}, runtime)
     stage.finish(len(sequences), 1, checkpoints.checkpoint_lineage(
         post_id, folder, root,
         [(e, "trained_on") for e in episode_ids] + [(tok_id, "trained_on"), (pre_id, "posttrained_from")],
@@ -109,7 +113,8 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
           window: Window | None = None,
           camera: str | None = None, seed: Seed = 0, patch: Patch | None = None,
           change_weight: Weight = 0.0, self_condition: Share = 0.0,
-          action_totals: ActionTotals = 0, also: list[str] | None = None) -> dict:
+          action_totals: ActionTotals = 0, also: list[str] | None = None, device: str | None = None,
+          precision: Literal["fp32", "bf16"] = "fp32", compile_model: bool = False) -> dict:
     """Pre-train world model ``preset_name`` on ``tokenizer``'s token shards (or ``token_shards``),
     then post-train it with actions on the simulated episodes of ``manifest`` (a YAML, an
     episode folder or a manifest hash), every camera or only ``camera``. ``patch``: codes per
@@ -120,8 +125,10 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
     as running totals since the episode's start (3 for ``ee_delta``: where the hand was sent).
     ``also``: more manifests (or episode folders, or hashes) whose episodes join post-training,
     each with its own manifest's text (e.g. the same scene at a noisier controller, so the model
-    sees pushes that fail)."""
+    sees pushes that fail). ``device``, ``precision``, ``compile_model``: where it trains
+    (``tasks.device``; none of it enters a checkpoint's id)."""
     checks = TrainParams.of(locals())  # every parameter check, for a deployment as for the CLI
+    runtime = checks.runtime()
     settings = Settings()
     root = settings.data_root.resolve()
     sources = [episode_folders(m, root) for m in [manifest, *(also or [])]]
@@ -150,9 +157,10 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                                        change_weight=change_weight, self_condition=self_condition,
                                        action_totals=action_totals)
         pre_id, pre_folder, pre_history = pretrain_phase(run, tok_folder, tok_id, shards, sequences, size,
-                                                         model_config, pre_config, preset_name)
+                                                         model_config, pre_config, preset_name, runtime)
         post_id, post_folder, post_history, videos = posttrain_phase(
-            run, sources, pre_id, pre_folder, tok_folder, tok_id, size, camera, model_config, post_config, preset_name)
+            run, sources, pre_id, pre_folder, tok_folder, tok_id, size, camera, model_config, post_config, preset_name,
+            runtime)
 
         body = (f"tokenizer `{tok_id}`, {len(shards)} token shards ({len(sequences)} sequences), "
                 f"{len(folders)} episodes\n\n"

@@ -10,11 +10,12 @@ import torch
 
 from models.tokenizer import VideoTokenizer, preset
 from tasks.tokenize import data, tokens
+from tasks.device import Runtime
 from tasks.tokenize.train import TrainConfig, psnr, to_tensor, train_tokenizer
 
 
 def train(clips: list[data.Clip], config: TrainConfig, folder: Path, extra: dict,
-          init: Path | None = None) -> tuple[list[dict], int]:
+          init: Path | None = None, runtime: Runtime | None = None) -> tuple[list[dict], int]:
     """Train from the preset's seeded initial weights (or from checkpoint folder ``init``), log to
     TensorBoard beside the checkpoint, save it; returns the history and the parameter count."""
     from torch.utils.tensorboard import SummaryWriter
@@ -30,7 +31,7 @@ def train(clips: list[data.Clip], config: TrainConfig, folder: Path, extra: dict
             if record["step"] % every == 0:  # about 20 progress lines per run, into the flow run's log
                 print(f"step {record['step']}/{config.steps} ({record['seconds']:.0f} s): loss {record['loss']:.4f}, "
                       f"train PSNR {record['psnr']:.2f} dB")
-        history = train_tokenizer(model, data.frame_arrays(clips), config, log)
+        history = train_tokenizer(model, data.frame_arrays(clips), config, log, runtime)
     tokens.save_checkpoint(model, folder, {"train": config.model_dump(mode="json"), **extra})
     return history, sum(p.numel() for p in model.parameters())
 

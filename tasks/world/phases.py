@@ -11,6 +11,7 @@ import torch
 from models.world_model import WorldModel, WorldModelConfig
 from schemas.hashing import content_hash
 from tasks.tables import markdown_table
+from tasks.device import Runtime
 from tasks.tokenize import tokens
 from tasks.world import checkpoints, data
 from tasks.world.train import WorldTrainConfig, train_world_model
@@ -36,24 +37,24 @@ def _tensorboard(folder: Path):
 
 
 def pretrain(sequences: list[data.CodeSequence], model_config: WorldModelConfig, config: WorldTrainConfig,
-             folder: Path, extra: dict) -> tuple[list[dict], int]:
+             folder: Path, extra: dict, runtime: Runtime | None = None) -> tuple[list[dict], int]:
     """Train from seeded initial weights on codes and text, log to TensorBoard beside the
     checkpoint, save it; returns the history and the parameter count."""
     torch.manual_seed(config.seed)
     model = WorldModel(model_config)
     writer, log = _tensorboard(folder)
     with writer:
-        history = train_world_model(model, sequences, config, log)
+        history = train_world_model(model, sequences, config, log, runtime)
     checkpoints.save_checkpoint(model, folder, {"phase": "pretrain", "train": config.model_dump(mode="json"), **extra})
     return history, sum(p.numel() for p in model.parameters())
 
 
 def posttrain(pretrained: Path, episodes: list[data.CodeSequence], config: WorldTrainConfig, folder: Path,
-              extra: dict) -> tuple[list[dict], int]:
+              extra: dict, runtime: Runtime | None = None) -> tuple[list[dict], int]:
     """Load the pre-trained checkpoint, add the zero-initialised action encoder, train on episodes, save."""
     writer, log = _tensorboard(folder)
     with writer:
-        model, history = posttrain_model(checkpoints.load_checkpoint(pretrained), episodes, config, log)
+        model, history = posttrain_model(checkpoints.load_checkpoint(pretrained), episodes, config, log, runtime)
     checkpoints.save_checkpoint(model, folder, {"phase": "posttrain", "train": config.model_dump(mode="json"), **extra})
     return history, sum(p.numel() for p in model.parameters())
 

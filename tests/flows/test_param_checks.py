@@ -48,6 +48,10 @@ CHECKS = [
     (tokenize, {"shards": "x", "crop": 20}, ["tokenize", "x", "--crop", "20"],
      "20 is not a multiple of tiny-dv4x8x8's spatial compression 8"),
     (tokenize, {"shards": "x", "crop": 128}, ["tokenize", "x", "--crop", "128"], "128 is larger than"),
+    (tokenize, {"shards": "x", "device": "tpu"}, ["tokenize", "x", "--device", "tpu"],
+     "expected auto, cpu, cuda or cuda:N"),
+    (train, {"manifest": PUSH, "device": "cpu", "precision": "bf16"}, ["train", PUSH, "--device", "cpu", "--precision", "bf16"],
+     "bf16 runs only on a CUDA device"),
     (train, {"manifest": PUSH, "preset_name": "huge"}, ["train", PUSH, "--preset", "huge"],
      "unknown world model preset 'huge'"),
     (train_policy, {"manifest": PUSH, "preset_name": "huge"}, ["train-policy", PUSH, "--preset", "huge"],
@@ -126,3 +130,14 @@ def test_each_flow_validates_with_a_model_of_its_very_parameters(flow, model):
         field = model.model_fields[name]
         assert parameter.default == (inspect.Parameter.empty if field.is_required() else field.default), name
     assert f"{model.__name__}.of(locals())" in inspect.getsource(flow.fn)
+
+
+@pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has a GPU")
+@pytest.mark.parametrize("flow,params,argv", [
+    (tokenize, {"shards": "x", "device": "cuda"}, ["tokenize", "x", "--device", "cuda"]),
+    (train, {"manifest": PUSH, "device": "cuda:0"}, ["train", PUSH, "--device", "cuda:0"])])
+def test_cuda_without_a_gpu_is_refused_in_one_line(flow, params, argv):
+    done = runner.invoke(app, argv)
+    assert done.exit_code == 2 and "no CUDA GPU is visible to PyTorch" in done.output, done.output
+    with pytest.raises(ParamsError, match="device: no CUDA GPU is visible"):
+        flow.fn(**params)
