@@ -178,10 +178,11 @@ def curate(inputs: list[str], manifest: str | None = None, config: str | None = 
         shards.remove_stale_temporaries(settings.data_root)  # left by a killed run; we hold the writer lock
         outputs.rename_legacy_shards(run.warehouse, settings.data_root)
         found = discover(inputs)
-        for item in found:
-            if item.problem:
-                _quarantine(run, item, "input", item.reason or "unusable", f"{item.path}: {item.problem}")
+        for item in (i for i in found if i.problem):
+            _quarantine(run, item, "input", item.reason or "unusable", f"{item.path}: {item.problem}")
         analyses = analyse_all(run, [i for i in found if not i.problem], cfg, scenario)
+        for line in report.smeared(analyses):  # corrupt frames the decoder did not flag: named, not quarantined
+            print(line)
         unique = deduplicate(run, analyses, cfg)
         encoded = encode_all(run, unique, cfg)
         started = time.perf_counter()
@@ -191,8 +192,7 @@ def curate(inputs: list[str], manifest: str | None = None, config: str | None = 
         counts = report.tally(analyses, unique, encoded)
         publish("curate", f"{len(found)} inputs, {len(run.failures)} quarantined, {len(written)} shards",
                 report.table(counts), "clips kept and rejected by reason")
-        if run.failures:
-            run.message = f"partial: {len(run.failures)} of {len(found)} inputs failed"
+        run.message = f"partial: {len(run.failures)} of {len(found)} inputs failed" if run.failures else run.message
         summary = {"run_id": run.run_id, "status": run.status, "inputs": len(found), "failed": len(run.failures),
                    "clips": len(encoded), "shards": [s.uri for s in written], "manifest_hash": run.manifest_hash,
                    "counts": {f"{s}/{r}": n for (s, r), n in sorted(counts.items())}}

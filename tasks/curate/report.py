@@ -20,3 +20,17 @@ def tally(analyses: list[VideoAnalysis], unique: list[ClipRecord], encoded: list
 
 def table(counts: Counter) -> str:
     return markdown_table(("stage", "outcome", "clips"), [(s, o, n) for (s, o), n in sorted(counts.items())])
+
+
+def smeared(analyses: list[VideoAnalysis]) -> list[str]:
+    """One line per source with frames smeared by decoder concealment (``tasks/curate/smear.py``):
+    the decoder did not flag them, so the file is named here; the clips holding them are
+    rejected as ``quality:smeared``, the rest of the file is curated."""
+    lines = []
+    for a in analyses:
+        if n := a.decode.get("smeared", 0):
+            frames = ", ".join(map(str, a.decode.get("smeared_frames", [])))
+            lines.append(f"{a.source}: {n} frame(s) smeared by decoder concealment (frames {frames}"
+                         f"{', ...' if n > len(a.decode.get('smeared_frames', [])) else ''}); the clips holding "
+                         "them are rejected as quality:smeared")
+    return lines
