@@ -14,7 +14,7 @@ from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
 from flows.panels import panels as panels_flow
-from flows.params import PanelEpisodes
+from flows.params import PanelEpisodes, WorldSamples
 from flows.params_policy import EvaluateParams
 from flows.recording import RunContext, recorded_run
 from flows.report import markdown_table, progress, publish, write_json
@@ -32,7 +32,7 @@ from tasks.panels.detect import DETECTOR_VERSION
 from tasks.panels.grid import expand, primary_camera, resolve_grid
 from tasks.policy.base import Policy
 from tasks.policy.bc import BCPolicy
-from tasks.policy.evaluate import EpisodeOutcome, Rollout, run_episode, success_table, world_verdict
+from tasks.policy.evaluate import EpisodeOutcome, Rollout, run_episode, success_table, world_judgement
 from tasks.policy.results import agreement_line, comparison, comparison_lineage, evaluation_lineage, fmt
 from tasks.policy.specs import load_policy
 
@@ -59,8 +59,9 @@ def plan(manifest_paths: list[str], grid: str | None, episodes: int | None,
 
 
 def evaluate_one(run: RunContext, spec: PanelSpec, variants: list[ScenarioManifest], policy: Policy,
-                 camera: str | None, world_model: str | None) -> list[EpisodeOutcome]:
-    """Every variant x seed of the panel under one policy."""
+                 camera: str | None, world_model: str | None, samples: int = 1) -> list[EpisodeOutcome]:
+    """Every variant x seed of the panel under one policy; the world model judges each from
+    ``samples`` rollouts (one greedy, or that many sampled: ``world_judgement``)."""
     futures = [(variant, pv.cell, seed, episode_task.submit(variant, pv.cell, seed, policy, camera))
                for pv, variant in zip(spec.variants, variants) for seed in pv.seeds]
     outcomes = []
@@ -69,8 +70,9 @@ def evaluate_one(run: RunContext, spec: PanelSpec, variants: list[ScenarioManife
             done: Rollout = future.result()
             outcome = done.outcome
             if world_model:
-                world, why = world_verdict(world_model, variant, camera, done, run.settings.data_root)
-                outcome = EpisodeOutcome(**{**outcome.as_dict(), "world": world, "world_reason": why})
+                judged = world_judgement(world_model, variant, camera, done, run.settings.data_root, samples)
+                outcome = EpisodeOutcome(**{**outcome.as_dict(), "world": judged.verdict, "world_reason": judged.reason,
+                                            "world_sure": judged.sure})
             outcomes.append(outcome)
             bar.advance()
     return outcomes
@@ -78,18 +80,19 @@ def evaluate_one(run: RunContext, spec: PanelSpec, variants: list[ScenarioManife
 
 def evaluate_policy(run: RunContext, panel: dict, spec: PanelSpec, variants: list[ScenarioManifest], policy: Policy,
                     camera: str | None, world_model: str | None, wm_sha: str | None,
-                    world_ids: list[str]) -> tuple[str, dict]:
+                    world_ids: list[str], samples: int = 1) -> tuple[str, dict]:
     """(evaluation id, result body) of one policy on one panel; a finished one is read back."""
     root = run.settings.data_root
     key = stable_id(STAGE, panel["panel_id"], content_hash(policy.describe()), wm_sha or "",
-                    f"{camera}/detector-{DETECTOR_VERSION}" if camera else "")
+                    f"{camera}/detector-{DETECTOR_VERSION}" if camera else "",
+                    *([f"world-samples-{samples}"] if world_model and samples > 1 else []))
     evaluation_id = stable_id("evaluation", key)
     result_file = paths.resolve(root, paths.EVALUATION_FILE, evaluation_id=evaluation_id)
     stage = run.stage(STAGE, key, [result_file], manifest_hash=panel["manifest_hash"])
     if stage.done:  # its table is read back, so it must be the file lineage recorded
         verified_artifact(run.warehouse, result_file, evaluation_id)
         return evaluation_id, json.loads(result_file.read_text())
-    outcomes = evaluate_one(run, spec, variants, policy, camera, world_model)
+    outcomes = evaluate_one(run, spec, variants, policy, camera, world_model, samples)
     table = success_table(outcomes, [v.cell for v in spec.variants])
     body = {"format": "worldline-evaluation/1", "evaluation_id": evaluation_id, "panel_id": panel["panel_id"],
             "panel": spec.name, "contract_hash": spec.contract_hash, "policy": policy.describe(),
@@ -125,7 +128,8 @@ def world_checkpoints(run: RunContext, world_model: str | None) -> list[str]:
 @flow(name="evaluate", log_prints=True, task_runner=task_runner())
 def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | None = None,
              policies: list[str] | None = None, compare: list[str] | None = None,
-             world_model: str | None = None, detector: bool = True, guard: bool = True) -> dict:
+             world_model: str | None = None, detector: bool = True, guard: bool = True,
+             world_samples: WorldSamples = 1) -> dict:
     """Evaluate ``policies`` (default: the scripted controller at the manifest's noise and at
     0.8) on the panel of ``manifest`` over ``grid``, and on the panels of the ``compare``
     manifests over the same grid (their contracts must match)."""
@@ -139,7 +143,8 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
     camera = primary_camera(parent, None) if detector or world_model else None
     wm_sha = content_hash({"checkpoint": str(Path(world_model).resolve())}) if world_model else None
     params = {"manifest": manifest, "grid": grid, "episodes": episodes, "policies": [p.name for p in loaded],
-              "compare": compare or [], "world_model": world_model, "detector": detector}
+              "compare": compare or [], "world_model": world_model, "detector": detector,
+              "world_samples": world_samples}
     with recorded_run("evaluate", settings, parent, source_uri=manifest, params=params) as run:
         for policy in loaded:  # a learned policy's weights, as read, must be the ones lineage recorded
             verified_policy(run.warehouse, root, policy)
@@ -149,13 +154,14 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
         for path, _, spec, variants in planned:
             for policy in loaded:
                 evaluation_id, body = evaluate_policy(run, made[path], spec, variants, policy, camera, world_model,
-                                                      wm_sha, world_ids)
+                                                      wm_sha, world_ids, world_samples)
                 results.append((spec.name, policy.name, evaluation_id, body["table"]))
                 episodes += body["episodes"]
         summary = compare_verdicts(run, results, episodes, root)
-        rows = [(panel, name, r["cell"], r["episodes"], fmt(r["sim"]), fmt(r["detector"]), fmt(r["world"]))
-                for panel, name, _, table in results for r in table]
-        text = markdown_table(("panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model"), rows)
+        rows = [(panel, name, r["cell"], r["episodes"], fmt(r["sim"]), fmt(r["detector"]), fmt(r["world"]),
+                 fmt(r.get("world_sure"))) for panel, name, _, table in results for r in table]
+        text = markdown_table(("panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model",
+                               "world sure"), rows)
         corr = "; ".join(f"{k} {fmt(v)}" for k, v in summary["spearman"].items())
         agree = "\n".join(agreement_line(f"{k} vs simulator", a) for k, a in summary["agreement"].items())
         publish("evaluate", f"{len(loaded)} policies on {len(planned)} panel(s)",

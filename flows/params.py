@@ -32,6 +32,7 @@ EncodeFrames = Annotated[int, Field(ge=1)]
 Holdout = Annotated[int, Field(ge=0, le=10_000)]
 Horizon = Annotated[int, Field(ge=1, le=64)]
 Worst = Annotated[int, Field(ge=1, le=8)]
+WorldSamples = Annotated[int, Field(ge=1, le=64)]
 
 
 class Refused(ValueError):

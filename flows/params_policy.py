@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pydantic import Field, model_validator
 
-from flows.params import Episodes, FlowParams, Holdout, PanelEpisodes, Refused, Seed, Steps, Worst
+from flows.params import Episodes, FlowParams, Holdout, PanelEpisodes, Refused, Seed, Steps, WorldSamples, Worst
 
 GRID = "stressor grid YAML (schemas/panel.py StressorGrid); default: nominal, clean, then one stressor at a time"
 
@@ -33,6 +33,8 @@ class EvaluateParams(FlowParams):
                                                       "on generated frames")
     detector: bool = Field(True, description="also judge the simulator's renders with the frame detector")
     guard: bool = True
+    world_samples: WorldSamples = Field(1, description="rollouts per episode the world model judges from: 1 greedy, "
+                                        "or that many sampled, the verdict undecided when under 3/4 of them agree")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest", "grid", "compare")
     cli_names = {"policies": "--policy"}
