@@ -14,7 +14,7 @@ os.environ["WORLDLINE_DATA_ROOT"] = str(_ROOT)
 os.environ["PREFECT_HOME"] = str(_ROOT / "prefect")
 os.environ.setdefault("MUJOCO_GL", "egl")
 # Every flow run would write its HTML report page (seconds each, over a hundred runs here);
-# tests/warehouse/test_openlineage.py turns them on for its runs, tests/tasks/report tests the page.
+# tests/flows/test_corpus.py turns them on for its two runs, tests/tasks/report tests the page.
 os.environ.setdefault("WORLDLINE_REPORT_PAGES", "false")
 
 # Integration tests: they start a Prefect API server or other processes, read the real footage
