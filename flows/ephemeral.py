@@ -39,6 +39,7 @@ from flows.ephemeral_server import (PARENT_ENV, _GuardedModule, servers_stopped_
                                     stop_servers)
 
 GRACE_S = 5.0  # from the first signal to a forced exit; the server then takes < 1 s to stop
+HOOKS_S = 2.0  # at most this long for the forced exit's hooks
 
 
 class Terminated(KeyboardInterrupt):
@@ -84,11 +85,19 @@ def _force_exit(code: int, why: str) -> None:
         sys.stdout.flush()
     except Exception:  # noqa: BLE001 (a closed or full stream must not stop the exit)
         pass
-    for hook in list(before_forced_exit):
-        try:
-            hook()
-        except Exception:  # noqa: BLE001 (nothing may stop the exit)
-            pass
+    def hooks() -> None:
+        for hook in list(before_forced_exit):
+            try:
+                hook()
+            except Exception:  # noqa: BLE001 (nothing may stop the exit)
+                pass
+        done.set()
+
+    # The hooks (closing the run row) get HOOKS_S, on a thread of their own: one that blocks
+    # (the warehouse's connection held by a thread the signal interrupted) must not stop the exit.
+    done = threading.Event()
+    threading.Thread(target=hooks, daemon=True).start()
+    done.wait(HOOKS_S)
     stop_servers(force=True)
     os._exit(code)
 
