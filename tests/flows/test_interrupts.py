@@ -51,8 +51,11 @@ def _start(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     env |= {"WORLDLINE_DATA_ROOT": str(root), "PYTHONDONTWRITEBYTECODE": "1"}
     command = [str(REPO / ".venv" / "bin" / "worldline"), "simulate", str(small_manifest(tmp_path)),
                "--episodes", "500"]
+    # As a terminal starts it: SIGINT not ignored. A suite launched in the background by a shell
+    # without job control (`cmd &` in a script) ignores SIGINT, and children inherit that.
     proc = subprocess.Popen(command, env=env, cwd=REPO, start_new_session=True, stdout=subprocess.PIPE,
-                            stderr=subprocess.STDOUT, text=True)
+                            stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + START_TIMEOUT_S
     while _finished(root) < 3:  # the flow is running and recording episodes
         assert proc.poll() is None, proc.stdout.read()[-3000:]
