@@ -14,7 +14,7 @@ from schemas.settings import Settings
 
 @app.command()
 def sql(
-    statement: str = typer.Argument(..., help="one read-only SQL statement, e.g. \"SELECT flow, status FROM runs\""),
+    statement: str = typer.Argument(..., help="one read-only SQL statement on the lineage tables (docs/lineage.md)"),
     fmt: str = typer.Option("table", "--format", help="table | csv | json"),
 ) -> None:
     """Run one read-only SQL statement on the lineage warehouse. While a flow writes, it reads
