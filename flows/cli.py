@@ -44,7 +44,13 @@ class _InputErrorsInOneLine(logging.Filter):
 def main() -> None:
     for name in ("prefect.flow_runs", "prefect.task_runs"):
         logging.getLogger(name).addFilter(_InputErrorsInOneLine())
-    app()
+    try:
+        app()
+    except SystemExit as exc:
+        from flows.ephemeral import leave_after_signal
+
+        leave_after_signal(exc.code)
+        raise
 
 
 if __name__ == "__main__":

@@ -139,6 +139,22 @@ def interrupts_handled() -> Iterator[None]:
             signal.signal(signum, handler)
 
 
+def leave_after_signal(code: object) -> None:
+    """After SIGINT or SIGTERM, once the command has ended (run rows closed, servers stopped, the
+    data root's lock released, its exit code set), leave without tearing the interpreter down.
+    The pool's worker threads may still be inside a task (MuJoCo, PyAV and DuckDB run native
+    code) and the deadline's timer may be about to fire: finalizing under them crashed the
+    process (exit -11 instead of 143, once in a CI run). Without a signal this does nothing."""
+    if _first_signal is None:
+        return
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except Exception:  # noqa: BLE001 (a closed stream must not stop the exit)
+            pass
+    os._exit(code if isinstance(code, int) else 128 + _first_signal)
+
+
 def guard_prefect() -> None:
     """Before Prefect starts: its temporary servers run under ``child_main``, and the SIGTERM
     handler it installs during a flow run (raising TerminationSignal) starts the deadline too.

@@ -104,3 +104,20 @@ def test_a_killed_command_leaves_no_temporary_server_behind(tmp_path):
     while processes_of(root) and time.monotonic() < deadline:
         time.sleep(0.1)
     assert processes_of(root) == []
+
+
+def test_after_a_signal_the_command_leaves_without_waiting_for_its_worker_threads():
+    """A task still running in a worker thread (native code, in simulate) neither delays nor
+    crashes the exit once the command has ended after a signal; without a signal, nothing changes."""
+    script = ("import threading, time\n"
+              "import flows.ephemeral as e\n"
+              "threading.Thread(target=time.sleep, args=(30,)).start()\n"
+              "e.leave_after_signal(143)\n"
+              "e._first_signal = 15\n"
+              "e.leave_after_signal(143)\n"
+              "print('not reached')\n")
+    started = time.monotonic()
+    done = subprocess.run([str(REPO / ".venv" / "bin" / "python"), "-c", script], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+    assert done.returncode == 143 and "not reached" not in done.stdout, done.stderr[-2000:]
+    assert time.monotonic() - started < 20
