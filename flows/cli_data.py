@@ -4,17 +4,18 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Optional
 
 import typer
 
 from flows import cli_checks as need
-from flows.cli_shell import app, command, fail, out, print_rows, writing
+from flows.cli_shell import app, check_format, command, fail, fmt_option, out, print_rows, writing
 from flows.params_data import CorpusParams, CurateParams, SimulateParams
 from schemas.errors import EXIT_ENVIRONMENT, EXIT_PARTIAL
 
-JSON = typer.Option(False, "--json", help="print JSON")
+JSON = typer.Option(False, "--json", hidden=True, help="the same as --format json")
 CONFIG = typer.Option(None, help="YAML overrides of CurateConfig")
 
 
@@ -106,26 +107,29 @@ def curate(params: CurateParams) -> None:
 
 
 @app.command()
-def scenes(video: Path, as_json: bool = JSON, config: Optional[Path] = CONFIG) -> None:
+def scenes(video: Path, fmt: str = fmt_option(), as_json: bool = JSON, config: Optional[Path] = CONFIG) -> None:
     """Print the scenes the curate flow detects (start and end frame and time), with its own code."""
     from tasks.curate.scenes import detect_scenes
 
+    check_format(fmt := "json" if as_json else fmt)
     need.video(video)
     cfg = need.curate_config(config)
     found = [s.summary() for s in detect_scenes(video, cfg.scenes, cfg.analysis, include_rejected=True)]
-    if as_json:
-        out.print_json(json.dumps({"video": str(video), "scenes": found}))
+    if fmt == "json":
+        sys.stdout.write(json.dumps({"video": str(video), "scenes": found}, indent=2) + "\n")
     else:
-        print_rows(list(found[0]) if found else ["kind"], [tuple(s.values()) for s in found], "table", str(video))
+        print_rows(list(found[0]) if found else ["kind"], [tuple(s.values()) for s in found], fmt, str(video))
 
 
 @app.command()
-def inspect(video: Path, as_json: bool = JSON, config: Optional[Path] = CONFIG,
+def inspect(video: Path, fmt: str = fmt_option(), as_json: bool = JSON, config: Optional[Path] = CONFIG,
             manifest: Optional[Path] = typer.Option(None, help="scenario manifest for captions")) -> None:
-    """Each scene's scores, tags, caption and verdict, exactly as the curate flow decides them."""
+    """Each scene's scores, tags, caption and verdict, exactly as the curate flow decides them
+    (csv: tags and scores as JSON text; json: the decode report too)."""
     from schemas.hashing import sha256_file
     from tasks.curate.analyse import analyse_video
 
+    check_format(fmt := "json" if as_json else fmt)
     need.video(video)
     scenario = need.manifest(manifest) if manifest else None
     result = analyse_video(video, sha256_file(str(video)), need.curate_config(config), scenario)
@@ -133,8 +137,12 @@ def inspect(video: Path, as_json: bool = JSON, config: Optional[Path] = CONFIG,
              "start_s": round(c.start_s, 3), "end_s": round(c.end_s, 3), "kept": c.kept,
              "stage": c.reject_stage, "reason": c.reject_reason, "tags": list(c.tags),
              "scores": {k: round(v, 4) for k, v in c.scores.items()}, "caption": c.caption} for c in result.clips]
-    if as_json:
-        out.print_json(json.dumps({"video": str(video), "clips": rows, "decode": result.decode}))
+    if fmt == "json":
+        sys.stdout.write(json.dumps({"video": str(video), "clips": rows, "decode": result.decode}, indent=2) + "\n")
+    elif fmt == "csv":
+        cols = list(rows[0]) if rows else ["clip_id"]
+        print_rows(cols, [tuple(json.dumps(v) if isinstance(v, (list, dict)) else v for v in r.values()) for r in rows],
+                   "csv")
     else:
         cols = ["start_frame", "end_frame", "kept", "stage", "reason", "tags", "caption"]
         print_rows(cols, [tuple(r[c] for c in cols) for r in rows], "table", str(video))

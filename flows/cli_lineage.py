@@ -2,17 +2,19 @@
 
 from __future__ import annotations
 
+import json
+import sys
 from pathlib import Path
 from typing import Optional
 
 import typer
 
 from flows import cli_checks as need
-from flows.cli_shell import app, err, fail, manifest_app, out, print_rows, refuse
+from flows.cli_shell import app, check_format, err, fail, fmt_option, manifest_app, out, print_rows, refuse
 from schemas.errors import EXIT_ENVIRONMENT, EXIT_INVALID
 from schemas.settings import Settings
 
-FORMAT = typer.Option("table", "--format", help="table | csv | json")
+FORMAT = fmt_option()
 
 
 @manifest_app.command("validate")
@@ -43,7 +45,7 @@ def manifest_validate(paths: list[Path]) -> None:
 @manifest_app.command("hash")
 def manifest_hash_cmd(path: Path) -> None:
     """Print the manifest hash (sha256 of its canonical JSON)."""
-    out.print(need.manifest(path).sha256, highlight=False)
+    sys.stdout.write(need.manifest(path).sha256 + "\n")
 
 
 @manifest_app.command("show")
@@ -51,9 +53,8 @@ def manifest_show(path: Path) -> None:
     """Print the manifest with every default filled in, and its hash."""
     from tasks.manifests import dump_yaml
 
-    manifest = need.manifest(path)
-    out.print(f"# manifest_hash: {manifest.sha256}", highlight=False)
-    out.print(dump_yaml(manifest), highlight=False, markup=False)
+    manifest = need.manifest(path)  # plain text, never wrapped: valid YAML in a file or a pipe
+    sys.stdout.write(f"# manifest_hash: {manifest.sha256}\n{dump_yaml(manifest).rstrip()}\n")
 
 
 @app.command()
@@ -75,7 +76,7 @@ def audit(
                  for n in audits.available()]
         (err if name else out).print("available audits:\n" + "\n".join(lines), highlight=False, markup=False)
         raise typer.Exit(EXIT_INVALID if name else 0)
-    _format(fmt)
+    check_format(fmt)
     try:
         sql, params = audits.bind(name, {"manifest": manifest, "artifact": artifact})
     except ValueError as exc:
@@ -90,11 +91,6 @@ def audit(
     except WarehouseError as exc:
         refuse(exc)
     print_rows(cols, rows, fmt, title=f"{name} ({len(rows)} rows)")
-
-
-def _format(fmt: str) -> None:
-    if fmt not in ("table", "csv", "json"):
-        fail(f"--format {fmt!r}: one of table, csv, json")
 
 
 def _full_id(warehouse, table: str, column: str, given: str, what: str) -> str:
@@ -112,11 +108,13 @@ def _full_id(warehouse, table: str, column: str, given: str, what: str) -> str:
 
 
 @app.command()
-def summary() -> None:
-    """Counts of every lineage table and the latest runs."""
+def summary(fmt: str = FORMAT) -> None:
+    """Counts of every lineage table, artifacts by kind, and runs per flow and status. As csv
+    one table: section (tables, artifacts, runs), name, status, count, bytes, last_ended."""
     from warehouse import queries
     from warehouse.store import Warehouse, WarehouseError
 
+    check_format(fmt)
     try:
         with Warehouse(Settings().warehouse_path, read_only=True) as wh:
             counts = wh.counts()
@@ -124,9 +122,18 @@ def summary() -> None:
             kcols, krows = queries.artifacts_by_kind(wh)
     except WarehouseError as exc:
         refuse(exc)
-    print_rows(["table", "rows"], list(counts.items()), "table", title=f"lineage {Settings().warehouse_path}")
-    print_rows(kcols, krows, "table", title="artifacts by kind")
-    print_rows(cols, rows, "table", title="runs")
+    if fmt == "json":
+        sys.stdout.write(json.dumps({"tables": counts, "artifacts_by_kind": [dict(zip(kcols, r)) for r in krows],
+                                    "runs": [dict(zip(cols, r)) for r in rows]}, default=str, indent=2) + "\n")
+    elif fmt == "csv":
+        print_rows(["section", "name", "status", "count", "bytes", "last_ended"],
+                   [("tables", t, None, n, None, None) for t, n in counts.items()]
+                   + [("artifacts", k, None, n, b, None) for k, n, b in krows]
+                   + [("runs", f, st, n, None, last) for f, st, n, last in rows], "csv")
+    else:
+        print_rows(["table", "rows"], list(counts.items()), "table", title=f"lineage {Settings().warehouse_path}")
+        print_rows(kcols, krows, "table", title="artifacts by kind")
+        print_rows(cols, rows, "table", title="runs")
 
 
 @app.command()
@@ -142,7 +149,7 @@ def verify(
     from warehouse.queries import has_manifest
     from warehouse.store import Warehouse, WarehouseError
 
-    _format(fmt)
+    check_format(fmt)
     settings = Settings()
     try:
         with Warehouse(settings.warehouse_path, read_only=True) as wh:
@@ -154,9 +161,8 @@ def verify(
     except WarehouseError as exc:
         refuse(exc)
     findings, checked, hashed = integrity.audit(rows, settings.data_root)
-    short = (lambda v: v and v[:12]) if fmt == "table" else (lambda v: v)  # noqa: E731
     print_rows(["problem", "kind", "artifact_id", "uri", "lineage_sha256", "file_sha256"],
-               [(f.problem, f.kind, short(f.artifact_id), f.uri, short(f.lineage_sha256), short(f.file_sha256))
+               [(f.problem, f.kind, f.artifact_id, f.uri, f.lineage_sha256, f.file_sha256)
                 for f in findings], fmt, title=f"files that differ from lineage ({len(findings)})")
     counts = ", ".join(f"{sum(f.problem == p for f in findings)} {p}" for p in integrity.PROBLEMS)
     line = (f"{checked} artifacts checked, {hashed} files hashed: "

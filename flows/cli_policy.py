@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from flows import cli_checks as need
-from flows.cli_shell import app, command, evaluate_app, fail, out, print_rows, writing
+from flows.cli_shell import app, command, err, evaluate_app, fail, out, print_rows, writing
 from flows.params_policy import EvaluateParams, LoopParams, PanelsParams, TrainPolicyParams
 
 
@@ -45,10 +45,11 @@ def train_policy_cmd(params: TrainPolicyParams) -> None:
               highlight=False)
 
 
-@command(evaluate_app, EvaluateParams, "policies")
-def evaluate_policies_cmd(params: EvaluateParams) -> None:
+@command(evaluate_app, EvaluateParams, "policies", listing=True)
+def evaluate_policies_cmd(params: EvaluateParams, fmt: str = "table") -> None:
     """Policies on a panel: simulator and frame-detector success per stressor cell, their rank
-    correlation (Prefect flow `evaluate`); exit 2 when panel contracts differ."""
+    correlation (Prefect flow `evaluate`); exit 2 when panel contracts differ. With csv or json,
+    the rows alone on stdout and the correlations on stderr."""
     parent = need.simulable(params.manifest)
     for other in params.compare or []:
         need.simulable(other)
@@ -75,18 +76,20 @@ def evaluate_policies_cmd(params: EvaluateParams) -> None:
     rows = [(e["panel"], e["policy"], r["cell"], r["episodes"], *("-" if r[k] is None else f"{r[k]:.2f}"
                                                                   for k in ("sim", "detector", "world")))
             for e in result["evaluations"] for r in e["table"]]
-    print_rows(["panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model"], rows, "table",
+    print_rows(["panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model"], rows, fmt,
                title="success rate per stressor cell")
-    out.print("Spearman (simulator vs): " + ", ".join(f"{k} {'-' if v is None else f'{v:.2f}'}"
-                                                       for k, v in result["spearman"].items()), highlight=False)
+    prose = out if fmt == "table" else err  # csv and json stay parseable
+    prose.print("Spearman (simulator vs): " + ", ".join(f"{k} {'-' if v is None else f'{v:.2f}'}"
+                                                         for k, v in result["spearman"].items()), highlight=False)
     for column, a in result["agreement"].items():
-        out.print(agreement_line(f"{column} vs simulator, per episode", a), highlight=False)
+        prose.print(agreement_line(f"{column} vs simulator, per episode", a), highlight=False)
 
 
-@command(app, LoopParams, "loop")
-def loop_cmd(params: LoopParams) -> None:
+@command(app, LoopParams, "loop", listing=True)
+def loop_cmd(params: LoopParams, fmt: str = "table") -> None:
     """Failures back into data: the worst stressor cells become derived manifests, simulated,
-    curated and post-trained on; success per cell before and after (Prefect flow `loop`)."""
+    curated and post-trained on; success per cell before and after (Prefect flow `loop`). With
+    csv or json, the rows alone on stdout and the checkpoint on stderr."""
     parent = need.simulable(params.manifest)
     params.check_scenario(parent)
     need.grid(parent, params.grid, params.episodes)
@@ -98,5 +101,5 @@ def loop_cmd(params: LoopParams) -> None:
     fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
     print_rows(["cell", "episodes", "before", "after", "targeted"],
                [(r["cell"], r["episodes"], fmt(r["before"]), fmt(r["after"]), "yes" if r["targeted"] else "")
-                for r in result["table"]], "table", title="success rate per stressor cell, before and after")
-    out.print(f"checkpoint {result['checkpoint']}", highlight=False)
+                for r in result["table"]], fmt, title="success rate per stressor cell, before and after")
+    (out if fmt == "table" else err).print(f"checkpoint {result['checkpoint']}", highlight=False)

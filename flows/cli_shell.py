@@ -4,11 +4,9 @@ writer lock it holds, how it prints, and commands declared from a flow's paramet
 
 from __future__ import annotations
 
-import csv
 import errno
 import inspect
-import json
-import sys
+import os
 import types
 import typing
 from contextlib import ExitStack, contextmanager
@@ -16,11 +14,10 @@ from pathlib import Path
 from typing import Annotated, Optional, Union
 
 import typer
-from rich.console import Console
-from rich.table import Table
 from typer.core import TyperGroup
 
-import flows  # noqa: F401  (sets PREFECT_HOME before anything imports prefect)
+import flows  # sets PREFECT_HOME before anything imports prefect
+from flows.console import FORMATS, err, out, print_rows, set_verbose  # noqa: F401  (print_rows: the commands)
 from flows.params import FlowParams, ParamsError, Refused
 from schemas.errors import EXIT_ENVIRONMENT, EXIT_INVALID, WorldlineError
 from schemas.settings import Settings
@@ -50,8 +47,6 @@ class Commands(TyperGroup):
 
 
 held = ExitStack()  # what a command holds until it ends (writing), released before its exit code is set
-out = Console()
-err = Console(stderr=True)
 app = typer.Typer(cls=Commands, add_completion=False, no_args_is_help=True)  # its help: flows/cli.py
 manifest_app = typer.Typer(no_args_is_help=True, help="Validate, hash and show scenario manifests.")
 evaluate_app = typer.Typer(no_args_is_help=True, help="Evaluate world models against the simulator, and policies.")
@@ -86,6 +81,7 @@ def writing() -> None:
     stopped on the way out, and Ctrl-C or SIGTERM ending the command within seconds
     (flows/ephemeral.py)."""
     from flows import ephemeral
+    from flows.console import route_prefect_logs
     from warehouse import lock
 
     settings = Settings()
@@ -94,23 +90,42 @@ def writing() -> None:
         f"{settings.data_root}: another worldline process ({holder}) is writing; waiting up to "
         f"{settings.lock_timeout:g} s")))
     ephemeral.guard_prefect()
+    route_prefect_logs()
     held.enter_context(ephemeral.servers_stopped_on_exit())
 
 
-def print_rows(cols: list[str], rows: list[tuple], fmt: str, title: str | None = None) -> None:
-    if fmt == "json":
-        out.print_json(json.dumps([dict(zip(cols, r)) for r in rows], default=str))
-    elif fmt == "csv":
-        writer = csv.writer(sys.stdout)
-        writer.writerow(cols)
-        writer.writerows(rows)
-    else:
-        table = Table(title=title)
-        for c in cols:
-            table.add_column(c, overflow="fold")
-        for r in rows:
-            table.add_row(*("" if v is None else str(v) for v in r))
-        out.print(table)
+def fmt_option(default: str = "table"):
+    return typer.Option(default, "--format", help="table (ids cut to 12 characters) | csv | json (never wrapped, ids whole)")
+
+
+def check_format(fmt: str) -> None:
+    if fmt not in FORMATS:
+        fail(f"--format {fmt!r}: one of {', '.join(FORMATS)}")
+
+
+def _version(shown: bool) -> None:
+    if shown:
+        from importlib.metadata import version
+
+        out.print(f"worldline {version('worldline')}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def options(
+    version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="print the version and exit"),
+    data_root: Optional[Path] = typer.Option(None, "--data-root", help="the data root (lineage, artifacts, Prefect's "
+                                             "home); the same as WORLDLINE_DATA_ROOT, which it overrides"),
+    verbose: bool = typer.Option(False, "--verbose", "-v", help="show Prefect's log lines (warnings and errors "
+                                 "show anyway)"),
+) -> None:
+    set_verbose(verbose)
+    if data_root is not None:
+        ours = str(Settings().prefect_home_path.resolve())  # PREFECT_HOME as flows/__init__.py set it
+        os.environ["WORLDLINE_DATA_ROOT"] = str(data_root)
+        if os.environ.get("PREFECT_HOME") == ours:  # not the user's own: it follows the data root
+            del os.environ["PREFECT_HOME"]
+        flows.configure_prefect()
 
 
 def _plain(annotation, metadata: list) -> tuple[object, dict]:
@@ -136,10 +151,11 @@ def _as_str(value):
     return [str(v) for v in value] if isinstance(value, list) else None if value is None else str(value)
 
 
-def command(group: typer.Typer, model: type[FlowParams], name: str | None = None):
+def command(group: typer.Typer, model: type[FlowParams], name: str | None = None, listing: bool = False):
     """Register ``body(params)`` as a command of ``group`` whose arguments and options are the
     fields of ``model`` (but its ``cli_hidden`` ones, left at their defaults); the values given
-    are checked by the model, a refusal in one line with exit 2."""
+    are checked by the model, a refusal in one line with exit 2. A ``listing`` command prints
+    rows: it takes ``--format`` too, checked before it starts, and is called ``body(params, fmt)``."""
 
     def register(body):
         parameters, fields = [], {}
@@ -159,18 +175,21 @@ def command(group: typer.Typer, model: type[FlowParams], name: str | None = None
                 default = typer.Option(info.default, decl, help=info.description, **bounds)
             fields[key] = field
             parameters.append(inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=hint))
+        if listing:
+            parameters.append(inspect.Parameter("fmt", inspect.Parameter.KEYWORD_ONLY, default=fmt_option(), annotation=str))
 
-        def run(**given):
+        def run(fmt: str = "table", **given):
+            check_format(fmt)
             values = {fields[k]: _as_str(v) if fields[k] in model.cli_paths else v for k, v in given.items()}
             try:
                 params = model.of(values, cli=True)
             except ParamsError as exc:
                 fail(str(exc))
             with checked(model):
-                return body(params)
+                return body(params, fmt) if listing else body(params)
 
         run.__signature__ = inspect.Signature(parameters)
-        run.__name__, run.__doc__ = body.__name__, body.__doc__
+        run.__name__, run.__doc__, run.body = body.__name__, body.__doc__, body
         group.command(name)(run)
         return body
 

@@ -1,21 +1,23 @@
 """What users see of a flow run: a markdown summary artifact and live progress.
 
 Progress is a Prefect progress artifact (the UI shows it on the flow run) and, when the flow
-runs from a terminal, a rich progress bar on stderr.
+runs from a terminal, a rich progress bar on the command's stderr console (flows/console.py),
+the one Prefect's log lines print through, so they print above the bar instead of tearing it.
 """
 
 from __future__ import annotations
 
 import json
 import os
-import sys
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Iterator
 
 from prefect.artifacts import (create_image_artifact, create_link_artifact, create_markdown_artifact,
                                create_progress_artifact, update_progress_artifact)
 
+from flows import console
+from tasks import progress as ticks
 from tasks.tables import markdown_table  # noqa: F401  (the flows' reports build tables with it)
 
 
@@ -58,17 +60,21 @@ class Progress:
 
 
 @contextmanager
-def progress(total: int, description: str) -> Iterator[Progress]:
-    """Progress over `total` units; a terminal bar only when stderr is a TTY (not in logs or CI)."""
-    if not sys.stderr.isatty() or not total:
+def progress(total: int, description: str, parts: dict[str, tuple[str, int]] | None = None) -> Iterator[Progress]:
+    """Progress over `total` units; a terminal bar only when stderr is a terminal (not in logs or
+    CI). ``parts``: {topic: (description, total)}, a bar each below it, moved by what tasks
+    report on that topic (tasks/progress.py) while they run, in this process."""
+    if not console.err.is_terminal or not total:
         yield Progress(total, description)
         return
-    from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress as Bar, TextColumn, TimeRemainingColumn
 
     with Bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-             console=Console(stderr=True), transient=True) as bar:
-        yield Progress(total, description, bar, bar.add_task(description, total=total))
+             console=console.err, transient=True) as bar, ExitStack() as stack:
+        main = bar.add_task(description, total=total)
+        for topic, (text, units) in (parts or {}).items():
+            stack.enter_context(ticks.listening(topic, lambda n, t=bar.add_task(text, total=units): bar.advance(t, n)))
+        yield Progress(total, description, bar, main)
 
 
 def write_json(path: Path, body: dict) -> None:

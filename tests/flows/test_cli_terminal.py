@@ -1,0 +1,149 @@
+"""Issue 30, point 5: an honest terminal. Machine-readable output is never wrapped (`manifest
+show` piped is valid YAML; `--format csv|json` whole ids, tables ids cut to 12 characters),
+every command that prints rows takes `--format`, `--version`, `--data-root`, one console for
+progress bars and log lines, Prefect's INFO lines only with `-v`."""
+
+from __future__ import annotations
+
+import csv
+import inspect
+import io
+import json
+import logging
+import os
+import subprocess
+import sys
+
+import pytest
+import yaml
+from rich.console import Console
+from typer.testing import CliRunner
+
+from flows import console
+from flows.cli import app
+from tests.support import MANIFESTS, REPO
+from tests.tasks.report.conftest import build
+
+runner = CliRunner()
+GOOD = MANIFESTS / "conveyor_push.yaml"
+
+
+def test_manifest_show_piped_into_a_narrow_terminal_is_valid_yaml():
+    env = {**os.environ, "COLUMNS": "40"}  # rich wrapped the 81-character hash comment at 40 (and at 80)
+    done = subprocess.run([sys.executable, "-m", "flows.cli", "manifest", "show", str(GOOD)], capture_output=True,
+                          text=True, cwd=REPO, env=env, timeout=120)
+    assert done.returncode == 0, done.stderr
+    first = done.stdout.splitlines()[0]
+    assert first.startswith("# manifest_hash: ") and len(first.split()[-1]) == 64
+    assert yaml.safe_load(done.stdout)["name"] == "conveyor-push"
+
+
+def test_version_prints_the_package_version():
+    from importlib.metadata import version
+
+    done = runner.invoke(app, ["--version"])
+    assert done.exit_code == 0 and done.output.strip() == f"worldline {version('worldline')}"
+
+
+def test_data_root_option_is_the_same_as_the_variable(tmp_path, monkeypatch):
+    lineage = build(tmp_path / "data")
+    monkeypatch.setenv("WORLDLINE_DATA_ROOT", str(tmp_path / "empty"))
+    monkeypatch.setenv("PREFECT_HOME", str((tmp_path / "empty" / "prefect").resolve()))  # as flows/__init__ sets it
+    assert runner.invoke(app, ["summary"]).exit_code == 3  # nothing written there yet
+    done = runner.invoke(app, ["--data-root", str(lineage.root), "summary", "--format", "json"])
+    assert done.exit_code == 0, done.output
+    assert json.loads(done.stdout)["tables"]["runs"] == 2
+    assert os.environ["PREFECT_HOME"] == str((lineage.root / "prefect").resolve())  # Prefect's home follows
+
+
+@pytest.fixture
+def lineage(tmp_path, monkeypatch):
+    built = build(tmp_path / "data")
+    monkeypatch.setenv("WORLDLINE_DATA_ROOT", str(built.root))
+    return built
+
+
+def test_json_and_csv_keep_ids_whole_and_tables_cut_them_to_12(lineage):
+    query = "SELECT artifact_id, sha256 FROM artifacts WHERE sha256 IS NOT NULL ORDER BY artifact_id"
+    rows = json.loads(runner.invoke(app, ["sql", query, "--format", "json"]).stdout)
+    full = rows[0]["sha256"]
+    assert len(full) == 64 and len(rows[0]["artifact_id"]) >= 16
+    as_csv = list(csv.DictReader(io.StringIO(runner.invoke(app, ["sql", query, "--format", "csv"]).stdout)))
+    assert as_csv[0] == rows[0]
+    table = runner.invoke(app, ["sql", query]).stdout
+    assert full[:12] in table and full[:13] not in table and rows[0]["artifact_id"][:13] not in table
+
+
+def test_summary_takes_each_format(lineage):
+    as_json = json.loads(runner.invoke(app, ["summary", "--format", "json"]).stdout)
+    assert as_json["tables"]["runs"] == 2 and {r["flow"] for r in as_json["runs"]} == {"curate", "train"}
+    as_csv = list(csv.DictReader(io.StringIO(runner.invoke(app, ["summary", "--format", "csv"]).stdout)))
+    assert {r["name"] for r in as_csv if r["section"] == "runs"} == {"curate", "train"}
+    assert "runs" in runner.invoke(app, ["summary"]).stdout
+    bad = runner.invoke(app, ["summary", "--format", "xml"])
+    assert bad.exit_code == 2 and "one of table, csv, json" in bad.output
+
+
+def _commands(group):
+    for info in group.registered_commands:
+        yield info
+    for sub in group.registered_groups:
+        yield from _commands(sub.typer_instance)
+
+
+def test_every_command_that_prints_rows_takes_format():
+    """`demo` prints its showcase (a summary, the loop's table, an audit) and takes no options."""
+    listing = []
+    for info in _commands(app):
+        body = getattr(info.callback, "body", info.callback)
+        if "print_rows(" in inspect.getsource(body) and body.__name__ != "demo":
+            listing.append(body.__name__)
+            assert "fmt" in inspect.signature(info.callback).parameters, f"{body.__name__} takes no --format"
+    assert {"audit", "summary", "sql", "verify", "scenes", "inspect", "evaluate_policies_cmd", "loop_cmd"} <= set(listing)
+
+
+def test_prefect_info_lines_only_when_verbose_warnings_always(monkeypatch):
+    """Prefect's console handler is swapped for one printing through the shared stderr console;
+    its INFO lines pass only with -v."""
+    from prefect.logging.handlers import PrefectConsoleHandler
+
+    root = logging.getLogger()
+    kept = list(root.handlers)
+    try:
+        root.addHandler(PrefectConsoleHandler(level=logging.NOTSET))
+        console.route_prefect_logs()
+        ours = [h for h in root.handlers if isinstance(h, console.ConsoleLog)]
+        assert ours and not any(isinstance(h, PrefectConsoleHandler) for h in root.handlers)
+        shown = Console(file=io.StringIO(), width=60)
+        monkeypatch.setattr(console, "err", shown)
+
+        def says(level, message):
+            ours[-1].handle(logging.LogRecord("prefect", level, __file__, 1, message, None, None))
+
+        console.set_verbose(False)
+        says(logging.INFO, "Beginning flow run 'quiet-fox'")
+        says(logging.WARNING, "a warning stays " + "x" * 80)  # longer than the console: one line all the same
+        console.set_verbose(True)
+        says(logging.INFO, "Finished in state Completed()")
+        lines = shown.file.getvalue().splitlines()
+        assert "quiet-fox" not in shown.file.getvalue()
+        assert any(line.endswith("a warning stays " + "x" * 80) for line in lines)
+        assert any("Finished in state Completed()" in line for line in lines)
+    finally:
+        console.set_verbose(False)
+        root.handlers[:] = kept
+
+
+def test_a_log_line_during_a_progress_bar_prints_above_it_through_one_console(monkeypatch):
+    from flows import report
+
+    terminal = Console(file=io.StringIO(), force_terminal=True, width=80, color_system=None)
+    monkeypatch.setattr(console, "err", terminal)
+    monkeypatch.setattr(report, "create_progress_artifact", lambda *a, **k: None)
+    handler = console.ConsoleLog(logging.Formatter("%(levelname)s %(message)s"))
+    with report.progress(3, "face guard") as bar:
+        assert bar._bar is not None and bar._bar.console is terminal
+        handler.handle(logging.LogRecord("prefect.task_runs", logging.WARNING, __file__, 1, "slow clip", None, None))
+        bar.advance(3)
+    # The bar's line cleared (ESC[2K), the log line written whole, then the bar drawn again below it.
+    assert "\x1b[2KWARNING slow clip" in terminal.file.getvalue().replace("\r", "\n").splitlines()
