@@ -96,6 +96,21 @@ def test_every_flow_has_a_deployment_and_curate_runs_nightly():
     assert pull["directory"] == "{{ project-root.stdout }}"
 
 
+
+def test_deployment_names_are_unique_and_say_what_they_run():
+    """Issue 30: four deployments were called `conveyor-push` and three `default`. Each name is
+    now the flow, then its manifest's name (the file's own `name:`, not the file's), and the
+    preset, seed or schedule a deployment runs with."""
+    names = [d["name"] for d in LIVE]
+    assert len(names) == len(set(names)), sorted(n for n in names if names.count(n) > 1)
+    for deployment in LIVE:
+        name, params = deployment["name"], deployment.get("parameters", {})
+        assert name.startswith(f"{flow_name(deployment)}-"), f"{name}: not named after its flow {flow_name(deployment)}"
+        said = [load(REPO / v).name for k, v in params.items() if k in ("manifest", "manifest_path")]
+        said += [params[k] for k in ("preset_name",) if k in params] + [f"seed-{params[k]}" for k in ("seed",) if k in params]
+        said += [s["slug"] for s in deployment.get("schedules", [])]
+        assert all(part in name for part in said), f"{name}: does not say {[p for p in said if p not in name]}"
+
 # -- the auth string, without a server -------------------------------------------------------------
 def test_auth_string_is_generated_once_kept_0600_and_shown_only_then(tmp_path):
     settings = Settings(data_root=tmp_path)
