@@ -11,7 +11,7 @@ from typing import Optional
 import typer
 
 from flows import cli_checks as need
-from flows.cli_shell import app, check_format, command, fail, fmt_option, out, print_rows, writing
+from flows.cli_shell import FORMAT, app, check_format, command, fail, out, print_rows, writing
 from flows.params_data import CorpusParams, CurateParams, SimulateParams
 from schemas.errors import EXIT_ENVIRONMENT, EXIT_PARTIAL
 
@@ -28,7 +28,7 @@ def register(paths: list[Path]) -> None:
 
     writing()
     for path in paths:
-        register_flow(str(path))
+        out.print(f"registered {path}: {register_flow(str(path))}", highlight=False)
 
 
 @command(app, SimulateParams)
@@ -61,7 +61,7 @@ def demo() -> None:
 
     writing()
     result = demo_flow()
-    summary()
+    summary("table")
     cols = ["cell", "episodes", "before", "after", "targeted"]
     print_rows(cols, [tuple(r[c] for c in cols) for r in result["loop"]["table"]], "table",
                title="the loop: simulator success per stressor cell before and after post-training")
@@ -107,7 +107,7 @@ def curate(params: CurateParams) -> None:
 
 
 @app.command()
-def scenes(video: Path, fmt: str = fmt_option(), as_json: bool = JSON, config: Optional[Path] = CONFIG) -> None:
+def scenes(video: Path, fmt: str = FORMAT, as_json: bool = JSON, config: Optional[Path] = CONFIG) -> None:
     """Print the scenes the curate flow detects (start and end frame and time), with its own code."""
     from tasks.curate.scenes import detect_scenes
 
@@ -122,7 +122,7 @@ def scenes(video: Path, fmt: str = fmt_option(), as_json: bool = JSON, config: O
 
 
 @app.command()
-def inspect(video: Path, fmt: str = fmt_option(), as_json: bool = JSON, config: Optional[Path] = CONFIG,
+def inspect(video: Path, fmt: str = FORMAT, as_json: bool = JSON, config: Optional[Path] = CONFIG,
             manifest: Optional[Path] = typer.Option(None, help="scenario manifest for captions")) -> None:
     """Each scene's scores, tags, caption and verdict, exactly as the curate flow decides them
     (csv: tags and scores as JSON text; json: the decode report too)."""

@@ -10,11 +10,10 @@ from typing import Optional
 import typer
 
 from flows import cli_checks as need
-from flows.cli_shell import app, check_format, err, fail, fmt_option, manifest_app, out, print_rows, refuse
+from flows.cli_shell import FORMAT, app, check_format, err, fail, manifest_app, out, print_rows, refuse
 from schemas.errors import EXIT_ENVIRONMENT, EXIT_INVALID
 from schemas.settings import Settings
 
-FORMAT = fmt_option()
 
 
 @manifest_app.command("validate")

@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from flows.cli_shell import app, check_format, fmt_option, out, print_rows, refuse
+from flows.cli_shell import FORMAT, app, check_format, out, print_rows, refuse
 from schemas.errors import WorldlineError
 from schemas.settings import Settings
 
@@ -15,7 +15,7 @@ from schemas.settings import Settings
 @app.command()
 def sql(
     statement: str = typer.Argument(..., help="one read-only SQL statement on the lineage tables (docs/lineage.md)"),
-    fmt: str = fmt_option(),
+    fmt: str = FORMAT,
 ) -> None:
     """Run one read-only SQL statement on the lineage warehouse. While a flow writes, it reads
     the snapshot the writer publishes (<data_root>/lineage.snapshot.duckdb), so it never holds

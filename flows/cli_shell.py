@@ -19,6 +19,7 @@ from typer.core import TyperGroup
 import flows  # sets PREFECT_HOME before anything imports prefect
 from flows.console import FORMATS, err, out, print_rows, set_verbose  # noqa: F401  (print_rows: the commands)
 from flows.params import FlowParams, ParamsError, Refused
+from flows.server_found import find_running_server
 from schemas.errors import EXIT_ENVIRONMENT, EXIT_INVALID, WorldlineError
 from schemas.settings import Settings
 
@@ -48,6 +49,7 @@ class Commands(TyperGroup):
 
 held = ExitStack()  # what a command holds until it ends (writing), released before its exit code is set
 app = typer.Typer(cls=Commands, add_completion=False, no_args_is_help=True)  # its help: flows/cli.py
+FORMAT = typer.Option("table", "--format", help="table (ids cut to 12 characters) | csv | json (never wrapped, ids whole)")
 manifest_app = typer.Typer(no_args_is_help=True, help="Validate, hash and show scenario manifests.")
 evaluate_app = typer.Typer(no_args_is_help=True, help="Evaluate world models against the simulator, and policies.")
 
@@ -77,11 +79,13 @@ def checked(model: type[FlowParams]):
 
 def writing() -> None:
     """For the rest of this command: the data root's writer lock (taken now, before Prefect
-    starts; exit 4 after WORLDLINE_LOCK_TIMEOUT seconds of waiting), the temporary Prefect server
-    stopped on the way out, and Ctrl-C or SIGTERM ending the command within seconds
-    (flows/ephemeral.py)."""
+    starts; exit 4 after WORLDLINE_LOCK_TIMEOUT seconds of waiting), a running Prefect server
+    used when there is one (flows/server_found.py), else a temporary one stopped on the way out,
+    Prefect's log lines through the shared console (flows/console.py), and Ctrl-C or SIGTERM
+    ending the command within seconds (flows/ephemeral.py)."""
     from flows import ephemeral
-    from flows.console import route_prefect_logs
+    from flows.console import route_prefect_logs, verbose
+    from flows.server_found import use_running_server
     from warehouse import lock
 
     settings = Settings()
@@ -89,13 +93,11 @@ def writing() -> None:
     held.enter_context(lock.writer(settings.data_root, settings.lock_timeout, on_wait=lambda holder: say(
         f"{settings.data_root}: another worldline process ({holder}) is writing; waiting up to "
         f"{settings.lock_timeout:g} s")))
+    if (api_url := use_running_server()) and verbose():
+        say(f"Prefect API: {api_url}")
     ephemeral.guard_prefect()
     route_prefect_logs()
     held.enter_context(ephemeral.servers_stopped_on_exit())
-
-
-def fmt_option(default: str = "table"):
-    return typer.Option(default, "--format", help="table (ids cut to 12 characters) | csv | json (never wrapped, ids whole)")
 
 
 def check_format(fmt: str) -> None:
@@ -114,8 +116,7 @@ def _version(shown: bool) -> None:
 @app.callback()
 def options(
     version: bool = typer.Option(False, "--version", callback=_version, is_eager=True, help="print the version and exit"),
-    data_root: Optional[Path] = typer.Option(None, "--data-root", help="the data root (lineage, artifacts, Prefect's "
-                                             "home); the same as WORLDLINE_DATA_ROOT, which it overrides"),
+    data_root: Optional[Path] = typer.Option(None, "--data-root", help="the same as WORLDLINE_DATA_ROOT, which it overrides"),
     verbose: bool = typer.Option(False, "--verbose", "-v", help="show Prefect's log lines (warnings and errors "
                                  "show anyway)"),
 ) -> None:
@@ -126,6 +127,7 @@ def options(
         if os.environ.get("PREFECT_HOME") == ours:  # not the user's own: it follows the data root
             del os.environ["PREFECT_HOME"]
         flows.configure_prefect()
+    find_running_server()  # before Prefect is imported: it reads PREFECT_API_URL once
 
 
 def _plain(annotation, metadata: list) -> tuple[object, dict]:
@@ -176,7 +178,7 @@ def command(group: typer.Typer, model: type[FlowParams], name: str | None = None
             fields[key] = field
             parameters.append(inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=hint))
         if listing:
-            parameters.append(inspect.Parameter("fmt", inspect.Parameter.KEYWORD_ONLY, default=fmt_option(), annotation=str))
+            parameters.append(inspect.Parameter("fmt", inspect.Parameter.KEYWORD_ONLY, default=FORMAT, annotation=str))
 
         def run(fmt: str = "table", **given):
             check_format(fmt)

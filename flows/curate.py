@@ -7,7 +7,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-from prefect import flow, task
+from prefect import flow, get_run_logger, task
 
 from flows.params_data import CurateParams
 from flows.recording import RunContext, recorded_run
@@ -19,7 +19,7 @@ from schemas.manifest import ScenarioManifest
 from schemas.errors import EnvironmentFault
 from schemas.records import ClipRecord
 from schemas.settings import Settings
-from tasks import faults, manifests
+from tasks import faults, manifests, progress as ticks
 from tasks.curate import analyse, dedup, lineage, outputs, report, shards
 from tasks.curate.config import CurateConfig, load_config
 from tasks.curate.decode import DecodeError
@@ -41,7 +41,7 @@ def _quarantine(run: RunContext, item: Input, stage: str, reason: str, detail: s
     failed.finish(1, 0, lineage.quarantined(source, item.sha256, stage, reason, detail, run.manifest_hash, failed.id),
                   attrs=paths.escaped({"source": source, "reason": reason}), status="failed")
     run.fail_input(f"{source}: {detail}")
-    print(f"quarantined {source}: {detail}")
+    get_run_logger().warning(f"quarantined {source}: {detail}")  # shown without -v too
 
 
 def analyse_all(run: RunContext, inputs: list[Input], config: CurateConfig,
@@ -121,8 +121,7 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
     for clip in clips:
         by_source[clip.source_uri].append(clip)
     config = config.for_batch(len(by_source), run.settings.workers)
-    futures, out = [], []
-    encodings = {}  # key -> the encode task, whose own failure the guard task's hides
+    futures, out, encodings = [], [], {}  # encodings: key -> the encode task, whose failure the guard's hides
     for source, group in sorted(by_source.items()):
         group.sort(key=lambda c: c.start_frame)
         targets = [paths.resolve(root, paths.CLIP_FILE, source_id=c.source_id, clip_id=c.clip_id) for c in group]
@@ -138,7 +137,8 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
         encoded = encodings[key] = encode_video.submit(source, spans, targets, config.encode)
         guarded = guard_clips.submit(targets, config.guard, config.encode, wait_for=[encoded])
         futures.append((key, group, targets, stage.restart(), guarded, redo))
-    with progress(len(futures), "encode kept clips") as bar:
+    with progress(n := sum(len(f[1]) for f in futures), "kept clips encoded and guarded",  # the guard per clip below
+                  {ticks.GUARDED: ("face guard", n)}) as bar:
         for key, group, targets, stage, future, redo in futures:
             try:
                 faces = future.result()
@@ -152,7 +152,7 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
                 run.fail_input(paths.escaped(f"{group[0].source_uri}: encoding failed: {exc}"))
                 continue
             finally:
-                bar.advance()
+                bar.advance(len(group))
             encoded = [outputs.with_file(c, t, root, found) for c, t, found in zip(group, targets, faces)]
             if redo and (differs := outputs.differs(run.warehouse, encoded, targets)):
                 run.fail_input(differs)
@@ -182,7 +182,7 @@ def curate(inputs: list[str], manifest: str | None = None, config: str | None = 
             _quarantine(run, item, "input", item.reason or "unusable", f"{item.path}: {item.problem}")
         analyses = analyse_all(run, [i for i in found if not i.problem], cfg, scenario)
         for line in report.smeared(analyses):  # corrupt frames the decoder did not flag: named, not quarantined
-            print(line)
+            get_run_logger().warning(line)
         unique = deduplicate(run, analyses, cfg)
         encoded = encode_all(run, unique, cfg)
         started = time.perf_counter()

@@ -45,10 +45,10 @@ def publish_page(warehouse, run_id: str, flow: str, data_root: Path) -> Path:
 
 
 class Progress:
-    def __init__(self, total: int, description: str, bar=None, task_id=None):
+    def __init__(self, total: int, description: str, bar=None, task_id=None, artifact: bool = True):
         self.total, self.done, self.description = max(total, 0), 0, description
         self._bar, self._task = bar, task_id
-        self._artifact = create_progress_artifact(0.0, description=description) if total else None
+        self._artifact = create_progress_artifact(0.0, description=description) if total and artifact else None
 
     def advance(self, n: int = 1) -> None:
         self.done = min(self.total, self.done + n)
@@ -60,21 +60,25 @@ class Progress:
 
 
 @contextmanager
-def progress(total: int, description: str, parts: dict[str, tuple[str, int]] | None = None) -> Iterator[Progress]:
+def progress(total: int, description: str, parts: dict[str, tuple[str, int]] | None = None,
+             topic: str | None = None) -> Iterator[Progress]:
     """Progress over `total` units; a terminal bar only when stderr is a terminal (not in logs or
     CI). ``parts``: {topic: (description, total)}, a bar each below it, moved by what tasks
-    report on that topic (tasks/progress.py) while they run, in this process."""
+    report on that topic (tasks/progress.py) while they run, in this process; ``topic`` moves
+    the bar itself that way, and then it is the terminal's only (no Prefect artifact)."""
     if not console.err.is_terminal or not total:
-        yield Progress(total, description)
+        yield Progress(total, description, artifact=topic is None)
         return
     from rich.progress import BarColumn, MofNCompleteColumn, Progress as Bar, TextColumn, TimeRemainingColumn
 
     with Bar(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
              console=console.err, transient=True) as bar, ExitStack() as stack:
         main = bar.add_task(description, total=total)
-        for topic, (text, units) in (parts or {}).items():
-            stack.enter_context(ticks.listening(topic, lambda n, t=bar.add_task(text, total=units): bar.advance(t, n)))
-        yield Progress(total, description, bar, main)
+        bars = {**({topic: main} if topic else {}),
+                **{key: bar.add_task(text, total=units) for key, (text, units) in (parts or {}).items()}}
+        for key, task in bars.items():
+            stack.enter_context(ticks.listening(key, lambda task=task, **said: bar.update(task, **said)))
+        yield Progress(total, description, bar, main, artifact=topic is None)
 
 
 def write_json(path: Path, body: dict) -> None:

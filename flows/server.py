@@ -33,6 +33,7 @@ from pathlib import Path
 
 from flows.server_auth import AUTH_FILE, AuthString, auth_string, child_env  # noqa: F401  (AUTH_FILE: tests)
 from flows.server_children import Child, StackError, died, group_members, spawn, stop  # noqa: F401  (tests, cli)
+from flows.server_found import announce, withdraw
 from flows.server_start import (POOL, PREFECT_FILE, deploy_flows, ensure_pool, run_server, start_server,
                                 start_worker)
 from schemas.settings import Settings
@@ -120,8 +121,10 @@ def serve(port: int | None = None, pool: str = POOL, deploy: bool = True) -> Non
     if ignored:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     stack = LocalStack(Settings(), port=port, pool=pool, deploy=deploy, ui=True)
+    announced = None
     try:
         stack.start()
+        announced = announce(stack.settings, stack.api_url)  # commands on this data root use this server
         print(f"Prefect server pid {stack.server_pid}: API {stack.api_url}, UI {stack.api_url.removesuffix('/api')}\n"
               f"process worker pid {stack.worker_pid} on pool {pool!r}; logs in {stack.settings.prefect_home_path}\n"
               f"{stack.auth.notice()}\n"
@@ -133,6 +136,8 @@ def serve(port: int | None = None, pool: str = POOL, deploy: bool = True) -> Non
     except KeyboardInterrupt:
         print("stopping worker and server...", flush=True)
     finally:
+        if announced is not None:
+            withdraw(announced)
         stack.stop()
         if main:
             signal.signal(signal.SIGTERM, previous)

@@ -14,13 +14,14 @@ from prefect import flow, task
 from flows.params import Batch, EncodeFrames, FocusCrops, Seed, Side, Steps, Weight
 from flows.params_world import TokenizeParams
 from flows.recording import recorded_run
-from flows.report import markdown_table
+from flows.report import markdown_table, progress
 from flows.report import publish as publish_report
 from models.tokenizer import preset
 from schemas import paths
 from schemas.hashing import content_hash, stable_id
 from schemas.records import EdgeRecord
 from schemas.settings import Settings
+from tasks import progress as ticks
 from tasks.tokenize import data, phases, tokens
 from tasks.tokenize.inputs import init_checkpoint, shard_artifacts, shard_files
 from tasks.tokenize.train import TrainConfig
@@ -79,9 +80,10 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
         history: list[dict] = []
         stage = run.stage(STAGE_TRAIN, key, [folder / tokens.WEIGHTS_FILE], manifest_hash=mh)
         if not stage.done:
-            history, params = train(all_clips, config, folder, {"checkpoint_id": checkpoint_id, "init": init_id,
-                                                                "shards": [u for _, u, _, _ in known]}, init_folder,
-                                    runtime)
+            with progress(steps, f"train {preset_name} (steps)", topic=ticks.TOKENIZER_STEPS):
+                history, params = train(all_clips, config, folder, {"checkpoint_id": checkpoint_id, "init": init_id,
+                                                                    "shards": [u for _, u, _, _ in known]},
+                                        init_folder, runtime)
             batch = tokens.checkpoint_lineage(
                 checkpoint_id, folder, root, [s for _, _, s, _ in known], history, stage.id, mh,
                 {"preset": preset_name, "variant": model_config.variant, "steps": steps, "size": size,
@@ -93,18 +95,19 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
                   f"loss {history[-1]['loss']:.4f}, train PSNR {history[-1]['psnr']:.2f} dB")
 
         written = []
-        for index, (path, uri, shard_id, shard_mh) in enumerate(known):
-            target, rel = tokens.token_shard_path(root, checkpoint_id, index)
-            ekey = stable_id(STAGE_ENCODE, checkpoint_id, shard_id, str(max_encode_frames), str(index))
-            if not clips[uri]:
-                continue
-            stage = run.stage(STAGE_ENCODE, ekey, [target], manifest_hash=shard_mh or mh)
-            if stage.done:
-                continue
-            digest, nbytes, n, score = encode_shard(folder, clips[uri], target, max_encode_frames)
-            stage.finish(len(clips[uri]), n, tokens.token_shard_lineage(
-                rel, digest, nbytes, n, checkpoint_id, shard_id, stage.id, shard_mh or mh, score), attrs={"source": uri})
-            written.append((rel, n, score))
+        with progress(len(known), "encode token shards") as bar:
+            for index, (path, uri, shard_id, shard_mh) in enumerate(known):
+                target, rel = tokens.token_shard_path(root, checkpoint_id, index)
+                ekey = stable_id(STAGE_ENCODE, checkpoint_id, shard_id, str(max_encode_frames), str(index))
+                stage = run.stage(STAGE_ENCODE, ekey, [target], manifest_hash=shard_mh or mh) if clips[uri] else None
+                if stage is None or stage.done:  # no clips, or encoded by an earlier run
+                    bar.advance()
+                    continue
+                digest, nbytes, n, score = encode_shard(folder, clips[uri], target, max_encode_frames)
+                stage.finish(len(clips[uri]), n, tokens.token_shard_lineage(
+                    rel, digest, nbytes, n, checkpoint_id, shard_id, stage.id, shard_mh or mh, score), attrs={"source": uri})
+                written.append((rel, n, score))
+                bar.advance()
 
         rows = [(h["step"], f"{h['seconds']:.1f}", f"{h['loss']:.4f}", f"{h['psnr']:.2f}") for h in history]
         body = (f"checkpoint `{checkpoint_id}` ({preset_name}, {model_config.variant}) under "

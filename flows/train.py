@@ -15,11 +15,12 @@ from prefect import flow, task
 from flows.params import ActionTotals, Batch, Patch, Seed, Share, Steps, Weight, Window
 from flows.params_world import TrainParams
 from flows.recording import RunContext, recorded_run
-from flows.report import publish
+from flows.report import progress, publish
 from models.world_model import WorldModelConfig, preset
 from schemas import paths
 from schemas.hashing import content_hash, stable_id
 from schemas.settings import Settings
+from tasks import progress as ticks
 from tasks.device import Runtime
 from tasks.lookup import verified_checkpoint
 from tasks.world import checkpoints, data, inputs, phases
@@ -53,10 +54,11 @@ def pretrain_phase(run: RunContext, tok_folder: Path, tok_id: str, shards: list,
     if stage.done:  # trained by an earlier run: post-training reads it, so it must still be those bytes
         verified_checkpoint(run.warehouse, root, folder)
         return pre_id, folder, []
-    history, params = pretrain(sequences, model_config, config, folder,
-                               {"checkpoint_id": pre_id, "tokenizer_id": tok_id, "size": size,
-                                "tokenizer": uri(tok_folder, root), "token_shards": [uri(p, root) for p, _, _ in shards]},
-                               runtime)
+    with progress(config.steps, f"pre-train {preset_name} (steps)", topic=ticks.WORLD_MODEL_STEPS):
+        history, params = pretrain(sequences, model_config, config, folder,
+                                   {"checkpoint_id": pre_id, "tokenizer_id": tok_id, "size": size, "tokenizer":
+                                    uri(tok_folder, root), "token_shards": [uri(p, root) for p, _, _ in shards]},
+                                   runtime)
     stage.finish(len(sequences), 1, checkpoints.checkpoint_lineage(
         pre_id, folder, root, [(s, "trained_on") for s in shard_ids] + [(tok_id, "trained_on")],
         history, stage.id, mh, {"model": "world_model", "phase": "pretrain", "preset": preset_name,
@@ -91,10 +93,11 @@ def posttrain_phase(run: RunContext, sources: list, pre_id: str, pre_folder: Pat
                                      model_config.action_dim, texts[folder], root, config.action_totals)
                for folder in folders]
     sequences = [s for f in futures for s in f.result()]
-    history, params = posttrain(pre_folder, sequences, config, folder,
-                                {"checkpoint_id": post_id, "pretrained_id": pre_id, "tokenizer_id": tok_id,
-                                 "size": size, "episodes": [uri(f, root) for f in folders],
-                                 "camera": camera, "tokenizer": uri(tok_folder, root)}, runtime)
+    with progress(config.steps, f"post-train {preset_name} with actions (steps)", topic=ticks.WORLD_MODEL_STEPS):
+        history, params = posttrain(pre_folder, sequences, config, folder,
+                                    {"checkpoint_id": post_id, "pretrained_id": pre_id, "tokenizer_id": tok_id,
+                                     "size": size, "episodes": [uri(f, root) for f in folders],
+                                     "camera": camera, "tokenizer": uri(tok_folder, root)}, runtime)
     stage.finish(len(sequences), 1, checkpoints.checkpoint_lineage(
         post_id, folder, root,
         [(e, "trained_on") for e in episode_ids] + [(tok_id, "trained_on"), (pre_id, "posttrained_from")],

@@ -8,20 +8,35 @@ import threading
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 
-_listeners: dict[str, list[Callable[[int], None]]] = {}
+# The topics: clips the face guard went through, training steps.
+GUARDED = "guarded-clips"
+TOKENIZER_STEPS, WORLD_MODEL_STEPS = "tokenizer-steps", "world-model-steps"
+
+_listeners: dict[str, list[Callable[..., None]]] = {}
 _lock = threading.Lock()
 
 
 def advance(topic: str, n: int = 1) -> None:
     """``n`` more units of ``topic`` done (from any thread)."""
+    _tell(topic, advance=n)
+
+
+def reached(topic: str, done: int) -> None:
+    """``done`` units of ``topic`` done in all (a training step, say)."""
+    _tell(topic, completed=done)
+
+
+def _tell(topic: str, **said: int) -> None:
     with _lock:
         listening = list(_listeners.get(topic, ()))
     for listener in listening:
-        listener(n)
+        listener(**said)
 
 
 @contextmanager
-def listening(topic: str, listener: Callable[[int], None]) -> Iterator[None]:
+def listening(topic: str, listener: Callable[..., None]) -> Iterator[None]:
+    """``listener(advance=n)`` or ``listener(completed=n)`` on each report about ``topic``
+    while the block runs (rich's ``Progress.update`` takes either)."""
     with _lock:
         _listeners.setdefault(topic, []).append(listener)
     try:

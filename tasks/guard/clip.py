@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from schemas.hashing import sha256_file
+from tasks import progress
 from tasks.guard.config import GuardConfig
 from tasks.guard.faces import FaceDecision, guard_stream, hide
 from tasks.video import EncodeConfig, display_frames, probe, write_mp4
@@ -99,4 +100,5 @@ def guard_clips(paths: list[Path | str], config: GuardConfig = GuardConfig(),
             finally:
                 tmp.unlink(missing_ok=True)
         out.append(decisions)
+        progress.advance(progress.GUARDED)  # a command's terminal bar, when one listens in this process
     return out

@@ -9,6 +9,7 @@ from pathlib import Path
 import torch
 
 from models.tokenizer import VideoTokenizer, preset
+from tasks import progress
 from tasks.tokenize import data, tokens
 from tasks.device import Runtime
 from tasks.tokenize.train import TrainConfig, psnr, to_tensor, train_tokenizer
@@ -26,6 +27,7 @@ def train(clips: list[data.Clip], config: TrainConfig, folder: Path, extra: dict
         every = max(config.log_every, config.steps // 20 // config.log_every * config.log_every)
 
         def log(record: dict) -> None:
+            progress.reached(progress.TOKENIZER_STEPS, record["step"])  # a command's terminal bar
             for name in ("loss", "psnr", "lr"):
                 writer.add_scalar(f"train/{name}", record[name], record["step"])
             if record["step"] % every == 0:  # about 20 progress lines per run, into the flow run's log

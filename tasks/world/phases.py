@@ -10,6 +10,7 @@ import torch
 
 from models.world_model import WorldModel, WorldModelConfig
 from schemas.hashing import content_hash
+from tasks import progress
 from tasks.tables import markdown_table
 from tasks.device import Runtime
 from tasks.tokenize import tokens
@@ -31,6 +32,7 @@ def _tensorboard(folder: Path):
     writer = SummaryWriter(str(folder / "tensorboard"))
 
     def log(record: dict) -> None:
+        progress.reached(progress.WORLD_MODEL_STEPS, record["step"])  # a command's terminal bar
         for name in ("loss", "accuracy", "copy_accuracy", "lr"):
             writer.add_scalar(f"train/{name}", record[name], record["step"])
     return writer, log

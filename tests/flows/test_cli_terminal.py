@@ -147,3 +147,27 @@ def test_a_log_line_during_a_progress_bar_prints_above_it_through_one_console(mo
         bar.advance(3)
     # The bar's line cleared (ESC[2K), the log line written whole, then the bar drawn again below it.
     assert "\x1b[2KWARNING slow clip" in terminal.file.getvalue().replace("\r", "\n").splitlines()
+
+
+def test_a_bar_moved_by_a_topic_follows_what_the_task_reports(monkeypatch, tmp_path):
+    """Training steps and the face guard's clips move their bars from inside the task
+    (tasks/progress.py): curate's encode bar once stood at 0/1 through a 64 s face guard."""
+    from flows import report
+    from tasks import progress as ticks
+    from tasks.guard.clip import guard_clips
+    from tasks.guard.config import GuardConfig
+    from tasks.world.phases import _tensorboard
+
+    terminal = Console(file=io.StringIO(), force_terminal=True, width=100, color_system=None)
+    monkeypatch.setattr(console, "err", terminal)
+    monkeypatch.setattr(report, "create_progress_artifact", lambda *a, **k: pytest.fail("a topic bar has no artifact"))
+    with report.progress(200, "pre-train (steps)", topic=ticks.WORLD_MODEL_STEPS) as bar:
+        writer, log = _tensorboard(tmp_path / "tensorboard")
+        with writer:
+            log({"step": 120, "loss": 1.0, "accuracy": 0.5, "copy_accuracy": 0.4, "lr": 1e-3})
+        assert bar._bar.tasks[0].completed == 120
+    monkeypatch.setattr(report, "create_progress_artifact", lambda *a, **k: None)
+    with report.progress(2, "kept clips encoded and guarded", {ticks.GUARDED: ("face guard", 2)}) as bar:
+        guard_clips(["a.mp4", "b.mp4"], GuardConfig(enabled=False))  # off: nothing read, each clip still counted
+        assert [t.completed for t in bar._bar.tasks] == [0, 2]
+    ticks.advance(ticks.GUARDED)  # nobody listens now: nothing happens

@@ -173,6 +173,51 @@ def wait_final(stack: LocalStack, flow_run_id: str):
     pytest.fail(f"flow run {flow_run_id} not finished after {RUN_TIMEOUT_S} s:\n{stack.worker.tail()}")
 
 
+def _worldline(env: dict[str, str], *args: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "flows.cli", *args], cwd=REPO, env=env, capture_output=True,
+                          text=True, timeout=300)
+
+
+def _registered_run(root: Path) -> str:
+    with Warehouse(root / "lineage.duckdb", read_only=True) as wh:
+        (run,) = wh.query("SELECT prefect_flow_run_id FROM runs WHERE flow = 'register'")[1]
+    return run[0]
+
+
+@pytest.mark.slow
+def test_a_command_uses_the_running_server_instead_of_a_temporary_one(stack, tmp_path):
+    """Issue 30: every command paid 17-22 s for a temporary server while one was running. With
+    PREFECT_API_URL (and the auth string) exported, and with neither while `worldline server`
+    runs for the data root (its server.json), the flow run lands in that server."""
+    from flows.server_found import announce
+
+    good = str(MANIFESTS / "conveyor_push.yaml")
+    for case in ("exported", "found"):
+        settings = Settings(data_root=tmp_path / case)
+        env = {**stack.env(), "WORLDLINE_DATA_ROOT": str(settings.data_root)}
+        env["PREFECT_HOME"] = env["WORLDLINE_PREFECT_HOME"] = str(settings.prefect_home_path)
+        if case == "found":  # the server as `worldline server` announces it; this test's pid stands for its own
+            for name in ("PREFECT_API_URL", "PREFECT_API_AUTH_STRING"):
+                env.pop(name)
+            settings.prefect_home_path.mkdir(parents=True)
+            (settings.prefect_home_path / AUTH_FILE).write_text(stack.auth_string + "\n")
+            announce(settings, stack.api_url)
+        done = _worldline(env, "-v", "register", good)
+        assert done.returncode == 0, done.stderr[-3000:]
+        assert "temporary server" not in done.stderr and f"Prefect API: {stack.api_url}" in done.stderr, done.stderr
+        with client(stack) as api:
+            assert api.read_flow_run(_registered_run(settings.data_root)).state.is_completed()
+
+
+def test_a_prefect_api_url_nobody_answers_is_one_line_exit_5(tmp_path):
+    env = {**os.environ, "WORLDLINE_DATA_ROOT": str(tmp_path), "PREFECT_HOME": str(tmp_path / "prefect"),
+           "PREFECT_API_URL": "http://127.0.0.1:9/api"}  # the discard port: nothing listens
+    done = _worldline(env, "register", str(MANIFESTS / "conveyor_push.yaml"))
+    assert done.returncode == 5 and done.stderr.strip().splitlines() == [
+        "PREFECT_API_URL=http://127.0.0.1:9/api: no Prefect server answers there (start one with `worldline server`, "
+        "or unset it for a temporary one)"], done.stderr
+
+
 @pytest.mark.slow
 def test_deployment_run_from_the_command_line_lands_in_lineage(stack):
     register = next(d for d in LIVE if flow_name(d) == "register")
