@@ -20,10 +20,15 @@ GAP_POWER = 0.5  # a content score over g frames ~ g ** GAP_POWER times one over
 
 class _RgbScore:
     """ContentDetector's frame score on RGB frames (PySceneDetect 0.7 with its default weights:
-    hue, saturation and value; no edges and no stats manager, which the splitter never sets)."""
+    hue, saturation and value; no edges and no stats manager, which the splitter never sets).
+    A caller that has the frame's HSV already (the splitter compares it across undecoded gaps)
+    hands it to ``process_frame`` and the frame is not converted again."""
+
+    _hsv: np.ndarray | None = None  # the HSV of the frame being processed, when the caller had it
 
     def _calculate_frame_score(self, timecode: FrameTimecode, frame_img: np.ndarray) -> float:
-        hue, sat, lum = cv2.split(cv2.cvtColor(frame_img, cv2.COLOR_RGB2HSV))
+        hsv, self._hsv = self._hsv, None
+        hue, sat, lum = cv2.split(hsv if hsv is not None else cv2.cvtColor(frame_img, cv2.COLOR_RGB2HSV))
         last, self._last_frame = self._last_frame, ContentDetector._FrameData(hue, sat, lum, None)
         if last is None:
             return 0.0
@@ -57,7 +62,10 @@ class RgbAdaptiveDetector(_RgbScore, AdaptiveDetector):
         self.weak_threshold = weak_threshold
         self.weak: list[FrameTimecode] = []
 
-    def process_frame(self, timecode: FrameTimecode, frame_img: np.ndarray, gap: int = 1) -> list[FrameTimecode]:
+    def process_frame(self, timecode: FrameTimecode, frame_img: np.ndarray, gap: int = 1,
+                      hsv: np.ndarray | None = None) -> list[FrameTimecode]:
+        """``hsv``: ``frame_img`` in OpenCV's RGB2HSV, when the caller has it."""
+        self._hsv = hsv
         ContentDetector.process_frame(self, timecode=timecode, frame_img=frame_img)
         if self._frame_score is None:
             return []
@@ -88,6 +96,9 @@ class RgbAdaptiveDetector(_RgbScore, AdaptiveDetector):
 class RgbContentDetector(_RgbScore, ContentDetector):
     """ContentDetector fed RGB frames (see ``_RgbScore``)."""
 
-    def process_frame(self, timecode: FrameTimecode, frame_img: np.ndarray, gap: int = 1) -> list[FrameTimecode]:
-        """``gap`` is taken as RgbAdaptiveDetector takes it, and unused: this threshold is absolute."""
+    def process_frame(self, timecode: FrameTimecode, frame_img: np.ndarray, gap: int = 1,
+                      hsv: np.ndarray | None = None) -> list[FrameTimecode]:
+        """``gap`` and ``hsv`` are taken as RgbAdaptiveDetector takes them; ``gap`` is unused:
+        this threshold is absolute."""
+        self._hsv = hsv
         return super().process_frame(timecode, frame_img)

@@ -16,7 +16,10 @@ measure the same pixels.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import functools
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
 from typing import ClassVar
 
 import cv2
@@ -52,6 +55,43 @@ class FilterConfig(BaseModel):
     def judge(self, frames: np.ndarray, times: np.ndarray) -> Verdict:
         """Keep this scene, or drop it with a reason; scores and tags either way."""
         raise NotImplementedError(f"{type(self).__name__}: a filter defines judge")
+
+
+_scope = threading.local()  # .verdicts: (judge, frames, times, config, verdict) of the open scope
+
+
+@contextmanager
+def one_scene() -> Iterator[None]:
+    """While open (``filters.run_filters`` opens it around one scene's filters), a judge marked
+    ``@judged_once`` returns its first verdict when it is asked again about the same ``frames``
+    and ``times`` objects with an equal config: the motion, quality and overlay text filters
+    each ask the video-type rules whether a scene is drawn, and the video-type filter itself
+    judges it again. The scope holds the arrays, so they are the ones judged (no filter writes
+    into them). Per thread: the curate flow judges several sources at once."""
+    outer = getattr(_scope, "verdicts", None)
+    _scope.verdicts = []
+    try:
+        yield
+    finally:
+        _scope.verdicts = outer
+
+
+def judged_once(judge: Callable[..., Verdict]) -> Callable[..., Verdict]:
+    """``judge(frames, times, config)`` with its verdicts kept for the open ``one_scene``."""
+
+    @functools.wraps(judge)
+    def once(frames: np.ndarray, times: np.ndarray, config) -> Verdict:
+        verdicts = getattr(_scope, "verdicts", None)
+        if verdicts is None:
+            return judge(frames, times, config)
+        for fn, f, t, c, verdict in verdicts:
+            if fn is judge and f is frames and t is times and c == config:
+                return verdict
+        verdict = judge(frames, times, config)
+        verdicts.append((judge, frames, times, config, verdict))
+        return verdict
+
+    return once
 
 
 def check_frames(frames: np.ndarray, times: np.ndarray) -> None:

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 import numpy as np
 from pydantic import BaseModel, ConfigDict
 
-from tasks.curate.filter_base import FilterConfig, Verdict, check_frames
+from tasks.curate.filter_base import FilterConfig, Verdict, check_frames, one_scene
 from tasks.curate.motion import MotionConfig
 from tasks.curate.overlay_text import OverlayTextConfig
 from tasks.curate.quality import QualityConfig
@@ -35,11 +35,12 @@ def run_filters(
     check_frames(frames, times)
     configs = default_configs() if configs is None else tuple(configs)
     verdicts: list[Verdict] = []
-    for config in configs:
-        if not config.enabled:
-            continue
-        verdict = config.judge(frames, times)
-        verdicts.append(verdict.model_copy(update={"stage": config.stage}))
+    with one_scene():  # the video-type rules judge the scene once for every filter that asks
+        for config in configs:
+            if not config.enabled:
+                continue
+            verdict = config.judge(frames, times)
+            verdicts.append(verdict.model_copy(update={"stage": config.stage}))
     scores: dict[str, float] = {}
     tags: list[str] = []
     for verdict in verdicts:

@@ -1,10 +1,10 @@
 """What the scene split keeps per source frame, and how spans are cut from it.
 
 ``frame_features`` measures an analysis frame once (mean luma, gradient energy, grey
-thumbnails, the concealment smear); ``SceneRows`` stores those rows for every frame position
-(filled-in rows for frames left undecoded carry no picture), forgets rows that no later
-boundary can need, and makes ``Scene`` spans of stored rows. ``splitter.SceneSplitter``
-decides where the boundaries are.
+thumbnails, the concealment smear, the HSV the cut detector scores); ``SceneRows`` stores
+those rows for every frame position (filled-in rows for frames left undecoded carry no
+picture), forgets rows that no later boundary can need, and makes ``Scene`` spans of stored
+rows. ``splitter.SceneSplitter`` decides where the boundaries are.
 """
 
 from __future__ import annotations
@@ -20,10 +20,13 @@ THUMB_BLUR = 2.0  # px of Gaussian blur on thumbnails: camera motion must not re
 MAX_FILL = 2  # undecoded frames in a row that get interpolated rows (see SceneSplitter.push)
 
 
-def frame_features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray, np.ndarray, float]:
+def frame_features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndarray, np.ndarray, float, np.ndarray]:
     """(mean luma, blurred 64-px grey thumbnail, mean squared gradient, half-size RGB frame,
-    unblurred 64-px grey thumbnail, concealment smear share) of an RGB analysis frame. Frames wider than 160 px are measured at half size: the same
-    cuts and transitions on our corpus and on bikes.mp4, at a quarter of the cost."""
+    unblurred 64-px grey thumbnail, concealment smear share, the half-size frame in OpenCV's
+    HSV) of an RGB analysis frame. Frames wider than 160 px are measured at half size: the same
+    cuts and transitions on our corpus and on bikes.mp4, at a quarter of the cost. The HSV is
+    made once here for the two that read it: the cut detector's score and the splitter's check
+    across undecoded gaps (each converted the frame itself before)."""
     h, w = image.shape[:2]
     small = image if w <= 160 else cv2.resize(image, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
     grey = cv2.cvtColor(small, cv2.COLOR_RGB2GRAY)
@@ -34,7 +37,8 @@ def frame_features(image: np.ndarray) -> tuple[float, np.ndarray, float, np.ndar
     gy = cv2.Sobel(grey, cv2.CV_32F, 0, 1, ksize=3)
     sharp = float(cv2.mean(gx * gx + gy * gy)[0])
     # Blurred so that sub-pixel camera motion does not read as a change of content.
-    return float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, small, thumb, smear_fraction(grey)
+    return (float(thumb.mean()), cv2.GaussianBlur(thumb, (0, 0), THUMB_BLUR), sharp, small, thumb, smear_fraction(grey),
+            cv2.cvtColor(small, cv2.COLOR_RGB2HSV))
 
 
 class _Rows:

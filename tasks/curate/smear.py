@@ -29,17 +29,24 @@ _KERNEL = np.ones((RUN, 1), np.uint8)
 
 
 def smear_fraction(grey: np.ndarray) -> float:
-    """Share of an h x w uint8 grey frame covered by vertical concealment streaks (0..1)."""
+    """Share of an h x w uint8 grey frame covered by vertical concealment streaks (0..1).
+
+    The steps are ``cv2.absdiff`` of neighbouring rows and columns in uint8 (the last row and
+    column step 0, as if the picture were repeated one pixel further), and the share is the
+    count of eroded streak pixels over the frame's size: the same figure as the int16 steps
+    and mean it replaced, at about half the cost (it runs on every analysed frame twice: in
+    the scene split and in the quality filter)."""
     h, w = grey.shape
     if w != WIDTH:
         grey = cv2.resize(grey, (WIDTH, max(1, round(h * WIDTH / w))), interpolation=cv2.INTER_AREA)
-    g = grey.astype(np.int16)
-    dx = np.abs(np.diff(g, axis=1, append=g[:, -1:]))
-    dy = np.abs(np.diff(g, axis=0, append=g[-1:, :]))
-    streak = ((dy <= FLAT_STEP) & (dx >= EDGE_STEP)).astype(np.uint8)
-    if streak.shape[0] < RUN:
+    if grey.shape[0] < RUN:
         return 0.0
-    return float(cv2.erode(streak, _KERNEL).mean())
+    dx = np.zeros_like(grey)
+    cv2.absdiff(grey[:, 1:], grey[:, :-1], dst=dx[:, :-1])
+    dy = np.zeros_like(grey)
+    cv2.absdiff(grey[1:], grey[:-1], dst=dy[:-1])
+    streak = ((dy <= FLAT_STEP) & (dx >= EDGE_STEP)).view(np.uint8)
+    return cv2.countNonZero(cv2.erode(streak, _KERNEL)) / streak.size
 
 
 def smeared(grey: np.ndarray) -> bool:

@@ -71,7 +71,7 @@ class SceneSplitter(SceneRows):
         self.exact = exact
         self.refilled = 0  # frames pushed from ``exact``
         self.exact_until = -1  # frames up to this index are all decoded
-        self.last_small: np.ndarray | None = None
+        self.last_hsv: np.ndarray | None = None  # HSV of the last frame pushed (``frame_features``)
         self.max_len = max_len
         # Frames after which no boundary can change, and context kept before the open span.
         self.lag = self.max_len + 2 * (self.max_len // 2 + 2) + config.adaptive_window + 2
@@ -108,14 +108,13 @@ class SceneSplitter(SceneRows):
         features = frame_features(frame.image)
         out: list[Scene] = []
         if self.exact is not None and self.last is not None and 1 < frame.index - self.last[0] <= MAX_REFILL + 1 \
-                and self.last_small is not None and self.last_small.shape == features[3].shape:
+                and self.last_hsv is not None and self.last_hsv.shape == features[6].shape:
             # A cut between the two decoded frames changes the picture across the gap at least
             # about as much as it does between its own two frames, and the detector never cuts
             # below min_content_val: under that, the frames left out cannot hold a cut.
             # The frames after one are decoded too, as far as the detector's window reaches,
             # so that the candidate's ratio is measured against neighbours one frame apart.
-            change = cv2.absdiff(cv2.cvtColor(features[3], cv2.COLOR_RGB2HSV),
-                                 cv2.cvtColor(self.last_small, cv2.COLOR_RGB2HSV))
+            change = cv2.absdiff(features[6], self.last_hsv)
             if frame.index <= self.exact_until or float(np.mean(change)) >= self.config.min_content_val:
                 if frame.index > self.exact_until:
                     self.exact_until = frame.index + self.config.adaptive_window + 1
@@ -123,11 +122,11 @@ class SceneSplitter(SceneRows):
                     if self.last[0] < extra.index < frame.index:
                         self.refilled += 1
                         out += self._push(extra, frame_features(extra.image))
-        self.last_small = features[3]
+        self.last_hsv = features[6]
         return out + self._push(frame, features)
 
     def _push(self, frame: AnalysisFrame, features) -> list[Scene]:
-        luma, thumb, sharp, small, raw, smear = features
+        luma, thumb, sharp, small, raw, smear, hsv = features
         held = self.last is not None and float(np.abs(thumb - self.last[3]).mean()) < HELD_STEP
         if self.last is not None and 1 < frame.index - self.last[0] <= MAX_FILL + 1:
             i0, t0, l0, th0, s0, r0 = self.last
@@ -146,7 +145,7 @@ class SceneSplitter(SceneRows):
         pts = round(frame.time / MICROSECOND)
         self.by_pts[pts] = pos
         code = FrameTimecode(Timecode(pts=pts, time_base=MICROSECOND), fps=self.rate)
-        for cut in self.detector.process_frame(code, small, gap):
+        for cut in self.detector.process_frame(code, small, gap, hsv):
             self.cuts.append(self.by_pts.get(cut.pts, pos))
         weak = getattr(self.detector, "weak", None)  # peaks below the threshold (see _unrelated)
         if weak:

@@ -48,7 +48,15 @@ from typing import ClassVar, Literal
 import cv2
 import numpy as np
 
-from tasks.curate.filter_base import FilterConfig, Verdict, active_box, check_frames, palette_size, sample_indices
+from tasks.curate.filter_base import (
+    FilterConfig,
+    Verdict,
+    active_box,
+    check_frames,
+    judged_once,
+    palette_size,
+    sample_indices,
+)
 
 VideoType = Literal["physical", "animation", "slides", "test_pattern", "screen"]
 
@@ -241,6 +249,7 @@ def classify(scores: dict[str, float], config: VideoTypeConfig) -> str:
     return "physical"
 
 
+@judged_once
 def judge(frames: np.ndarray, times: np.ndarray, config: VideoTypeConfig) -> Verdict:
     """Judge the content type of one scene: frames T x h x w x 3 uint8 RGB, times T seconds."""
     if not config.enabled:

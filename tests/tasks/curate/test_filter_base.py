@@ -139,3 +139,39 @@ def test_active_box_equals_the_reference(real_frames):
         stacks.append(boxed)
     for stack in stacks + [np.stack([f] * 2) for f in odd_frames()]:
         assert active_box(stack) == active_box_reference(stack)
+
+
+def test_a_judged_once_verdict_is_kept_for_one_scene_only():
+    from tasks.curate.filter_base import judged_once, one_scene
+
+    calls = []
+
+    @judged_once
+    def judge(frames, times, config):
+        calls.append(config)
+        return Verdict(keep=True, scores={"n": float(len(calls))})
+
+    frames, times = scene(4)
+    with one_scene():
+        first = judge(frames, times, "a")
+        assert judge(frames, times, "a") is first  # same arrays, equal config: the first verdict
+        judge(frames, times, "b")  # another config
+        judge(frames.copy(), times, "a")  # other arrays, even with the same pixels
+        assert len(calls) == 3
+    judge(frames, times, "a")  # outside a scene nothing is kept
+    judge(frames, times, "a")
+    assert len(calls) == 5
+
+
+def test_the_filters_ask_the_video_type_rules_once_a_scene():
+    from unittest import mock
+
+    from tasks.curate import video_type
+    from tasks.curate.filters import run_filters
+
+    frames, times = scene(40, speed=0.0)  # still: motion and quality both ask whether it is drawn
+    with mock.patch.object(video_type, "frame_features", wraps=video_type.frame_features) as measured:
+        merged, _ = run_filters(frames, times)
+    samples = len(sample_indices(len(frames), video_type.VideoTypeConfig().n_samples))
+    assert measured.call_count == samples
+    assert merged.reason == "static"

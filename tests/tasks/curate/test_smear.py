@@ -60,3 +60,32 @@ def test_the_real_concealment_frame_is_the_only_smeared_one():
         pytest.skip("../shared/data is absent")
     found = [f.index for f in analysis_frames(path) if smear_fraction(grey(f.image)) >= SMEAR_MIN]
     assert found == [229]
+
+
+def _reference(picture: np.ndarray) -> float:
+    """The measure as first written: int16 steps, a boolean mask and its mean."""
+    from tasks.curate.smear import _KERNEL, EDGE_STEP, FLAT_STEP, RUN, WIDTH
+
+    h, w = picture.shape
+    if w != WIDTH:
+        picture = cv2.resize(picture, (WIDTH, max(1, round(h * WIDTH / w))), interpolation=cv2.INTER_AREA)
+    g = picture.astype(np.int16)
+    dx = np.abs(np.diff(g, axis=1, append=g[:, -1:]))
+    dy = np.abs(np.diff(g, axis=0, append=g[-1:, :]))
+    streak = ((dy <= FLAT_STEP) & (dx >= EDGE_STEP)).astype(np.uint8)
+    if streak.shape[0] < RUN:
+        return 0.0
+    return float(cv2.erode(streak, _KERNEL).mean())
+
+
+@pytest.mark.parametrize("width", [128, 160, 170, 256, 321])
+def test_the_uint8_steps_give_the_figure_of_the_int16_ones(width):
+    rng = np.random.default_rng(width)
+    pictures = [textured(5), streaked(textured(6), H // 3), rng.integers(0, 256, (90, 160), np.uint8),
+                np.repeat(rng.integers(0, 256, (1, 160), np.uint8), 90, axis=0)]
+    for picture in pictures:
+        h, w = picture.shape
+        picture = cv2.resize(picture, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
+        assert smear_fraction(picture) == _reference(picture)
+        crop = picture[3:-3, 5:-5]  # a view with a row stride wider than its rows (160 wide from 170)
+        assert smear_fraction(crop) == _reference(crop)
