@@ -23,7 +23,18 @@ from av.video.frame import PictureType
 from pydantic import BaseModel, ConfigDict
 
 from tasks import faults
-from tasks.video import DecodeError, EncodeConfig, SourceInfo, frame_pts, open_video, output_size, probe, x264_options
+from tasks.video import (
+    DecodeError,
+    EncodeConfig,
+    SourceInfo,
+    frame_pts,
+    is_reference,
+    nal_length_size,
+    open_video,
+    output_size,
+    probe,
+    x264_options,
+)
 
 
 class EncodedClip(BaseModel):
@@ -135,7 +146,10 @@ def encode_clips(source: Path | str, spans: Sequence[tuple[int, int]], out_paths
 
     Spans may come in any order and may overlap. Between spans the decoder seeks to the
     last key frame before the next span when that skips at least one key frame; otherwise it
-    decodes through. Returns the clips in the order of ``spans``.
+    decodes through. On the way to a span (from the key frame, or through a gap) an H.264
+    frame no other frame predicts from and no span holds is not decoded at all (``_idle``):
+    the frames of the spans are the same, and about half of the lead-in is left out. Returns
+    the clips in the order of ``spans``.
     """
     source = Path(source)
     if len(spans) != len(out_paths):
@@ -155,6 +169,7 @@ def encode_clips(source: Path | str, spans: Sequence[tuple[int, int]], out_paths
         stream = container.streams.video[0]
         stream.thread_type = config.decode_thread_type
         stream.thread_count = config.decode_threads
+        idle = _idle(stream, pts, spans)
         waiting = list(order)  # spans not yet started, by start frame
         position = -1  # index of the last frame decoded
         while waiting or writers:
@@ -169,7 +184,7 @@ def encode_clips(source: Path | str, spans: Sequence[tuple[int, int]], out_paths
                     if key_index > position + 1:
                         container.seek(int(keys[key]), stream=stream, backward=True)
                         position = key_index - 1
-                    frames = _frames(container, stream)
+                    frames = _frames(container, stream, idle)
             frame = next(frames, None)
             if frame is None:
                 break
@@ -201,9 +216,31 @@ def encode_clips(source: Path | str, spans: Sequence[tuple[int, int]], out_paths
     return [results[j] for j in range(len(spans))]
 
 
-def _frames(container, stream):
+def _idle(stream, pts: np.ndarray, spans: Sequence[tuple[int, int]]):
+    """packet -> whether its frame may go undecoded: an H.264 frame that no other frame
+    predicts from (``is_reference``) and that lies in none of ``spans``. None for other codecs."""
+    length_size = nal_length_size(stream)
+    if length_size is None:
+        return None
+    shown = np.zeros(len(pts), bool)
+    for start, end in spans:
+        shown[start:end] = True
+
+    def idle(packet) -> bool:
+        if packet.pts is None:
+            return False
+        index = int(np.searchsorted(pts, packet.pts))
+        return index < len(pts) and pts[index] == packet.pts and not shown[index] \
+            and not is_reference(packet, length_size)
+
+    return idle
+
+
+def _frames(container, stream, idle=None):
     try:
         for packet in container.demux(stream):
+            if idle is not None and packet.size and idle(packet):
+                continue  # nothing shows this frame or predicts from it
             try:
                 yield from packet.decode()
             except av.FFmpegError:

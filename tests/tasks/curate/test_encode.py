@@ -29,8 +29,8 @@ def test_spans_get_exactly_their_frames_in_one_pass(source, tmp_path, monkeypatc
     decoded = []
     original = encode._frames
 
-    def counting(container, stream):
-        for frame in original(container, stream):
+    def counting(container, stream, idle=None):
+        for frame in original(container, stream, idle):
             decoded.append(frame.pts)
             yield frame
 
@@ -98,3 +98,24 @@ def test_bad_spans_are_refused_before_writing(source, tmp_path):
     with pytest.raises(ValueError, match="output paths"):
         encode_clips(source, [(0, 5)], [])
     assert not list(tmp_path.iterdir())
+
+
+def test_frames_left_undecoded_on_the_way_change_no_byte(source, tmp_path, monkeypatch):
+    """Unreferenced frames before and between spans are not decoded; the clips are the bytes of
+    a pass that decodes every frame."""
+    spans = [(60, 80), (88, 95), (130, 140)]  # lead-ins from the key frames at 50 and 125, a gap of 8
+    decoded = {}
+    original = encode._frames
+
+    def counting(container, stream, idle=None):
+        for frame in original(container, stream, idle):
+            decoded[idle is None] = decoded.get(idle is None, 0) + 1
+            yield frame
+
+    monkeypatch.setattr(encode, "_frames", counting)
+    fast = encode_clips(source, spans, [tmp_path / f"fast_{j}.mp4" for j in range(len(spans))])
+    monkeypatch.setattr(encode, "_idle", lambda *args: None)
+    full = encode_clips(source, spans, [tmp_path / f"full_{j}.mp4" for j in range(len(spans))])
+    assert [c.sha256 for c in fast] == [c.sha256 for c in full]
+    assert [c.frames for c in fast] == [20, 7, 10]
+    assert decoded[False] < decoded[True], decoded
