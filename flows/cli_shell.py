@@ -121,6 +121,7 @@ def options(
                                  "show anyway)"),
 ) -> None:
     set_verbose(verbose)
+    os.environ.setdefault("DO_NOT_TRACK", "1")  # Prefect's SDK telemetry off (no network here), and its notice
     if data_root is not None:
         ours = str(Settings().prefect_home_path.resolve())  # PREFECT_HOME as flows/__init__.py set it
         os.environ["WORLDLINE_DATA_ROOT"] = str(data_root)

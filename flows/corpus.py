@@ -7,9 +7,10 @@ from prefect import flow, task
 from flows.params import Fps, Height, Minutes, Seed, Width
 from flows.params_data import CorpusParams
 from flows.recording import recorded_run
-from flows.report import markdown_table, publish
+from flows.report import markdown_table, progress, publish
 from schemas.hashing import stable_id
 from schemas.settings import Settings
+from tasks import progress as ticks
 from tasks.corpus import generate
 
 generate_corpus = task(generate.generate_corpus, name="generate-corpus", retries=1)
@@ -24,7 +25,8 @@ def corpus(minutes: Minutes = 1.0, seed: Seed = 0, width: Width = 640, height: H
     with recorded_run("corpus", settings, params=params) as run:
         stage = run.stage("corpus", stable_id("corpus", *(f"{k}={v}" for k, v in sorted(params.items()))),
                           manifest_hash=None)
-        videos = generate_corpus(settings.data_root, seed=seed, minutes=minutes, width=width, height=height, fps=fps)
+        with progress(round(minutes * 60 * fps), f"corpus seed {seed} (frames)", topic=ticks.CORPUS_FRAMES):
+            videos = generate_corpus(settings.data_root, seed=seed, minutes=minutes, width=width, height=height, fps=fps)
         stage.finish(0, len(videos), generate.corpus_lineage(videos, stage.id, None, settings.data_root), attrs=params)
         print(f"corpus seed {seed}: {len(videos)} videos, {minutes} min at {width}x{height}")
         publish("corpus", f"seed {seed}, {len(videos)} videos, {minutes} min at {width}x{height}",

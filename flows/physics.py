@@ -19,7 +19,7 @@ from prefect.cache_policies import NO_CACHE
 from flows.params import Horizon, PanelEpisodes, Seed
 from flows.params_world import HELDOUT_FIRST_SEED, PhysicsParams
 from flows.recording import RunContext, recorded_run
-from flows.report import publish
+from flows.report import progress, publish
 from schemas import paths
 from schemas.hashing import content_hash, stable_id
 from schemas.records import ArtifactRecord, LineageBatch
@@ -104,7 +104,11 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
             print(f"evaluation {evaluation_id} done before: {result_path}")
             return result["summary"]
 
-        rendered = [render_heldout(scenario, seed, primary.name, others) for seed in seeds]
+        rendered = []
+        with progress(len(seeds), f"simulate held-out episodes of {scenario.name}") as bar:
+            for seed in seeds:
+                rendered.append(render_heldout(scenario, seed, primary.name, others))
+                bar.advance()
         per_camera = {name: [(seed, truths[name]) for seed, truths in zip(seeds, rendered)]
                       for name in [primary.name, *others]}
         cameras = {c.name: PinholeCamera.from_manifest(c) for c in world}

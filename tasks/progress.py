@@ -5,12 +5,13 @@ Nobody listens in a worker process or on a Ray node, and there a report costs no
 from __future__ import annotations
 
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
 
-# The topics: clips the face guard went through, training steps.
+# The topics: clips the face guard went through, training steps, corpus frames written.
 GUARDED = "guarded-clips"
 TOKENIZER_STEPS, WORLD_MODEL_STEPS = "tokenizer-steps", "world-model-steps"
+CORPUS_FRAMES = "corpus-frames"
 
 _listeners: dict[str, list[Callable[..., None]]] = {}
 _lock = threading.Lock()
@@ -24,6 +25,13 @@ def advance(topic: str, n: int = 1) -> None:
 def reached(topic: str, done: int) -> None:
     """``done`` units of ``topic`` done in all (a training step, say)."""
     _tell(topic, completed=done)
+
+
+def counted(items: Iterable, topic: str) -> Iterator:
+    """``items``, one unit of ``topic`` reported as each is taken (frames as a writer takes them)."""
+    for item in items:
+        yield item
+        advance(topic)
 
 
 def _tell(topic: str, **said: int) -> None:

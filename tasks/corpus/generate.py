@@ -20,6 +20,7 @@ from schemas import paths
 from schemas.hashing import sha256_file, stable_id
 from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, raw_video_id
+from tasks import progress
 from tasks.corpus import nonphysical, procedural
 from tasks.corpus.config import TRUTH_FORMAT, CorpusConfig
 from tasks.corpus.defects import Defect, transform
@@ -137,7 +138,8 @@ def generate_corpus(root: Path, seed: int, minutes: float, n_videos: int | None 
     for plan in plans:
         video = paths.resolve(root, paths.CORPUS_VIDEO, seed=seed, index=plan.index)
         truth = paths.resolve(root, paths.CORPUS_TRUTH, seed=seed, index=plan.index)
-        write_mp4(video, _frames(plan, width, height, sims, config), fps, config.crf, config.preset)
+        frames = progress.counted(_frames(plan, width, height, sims, config), progress.CORPUS_FRAMES)  # a terminal bar
+        write_mp4(video, frames, fps, config.crf, config.preset)
         tmp = truth.with_name(f".{truth.name}.{os.getpid()}.tmp")
         tmp.write_text(json.dumps(_truth(plan, video.name, width, height), indent=1, sort_keys=True))
         os.replace(tmp, truth)

@@ -49,11 +49,13 @@ def test_data_root_option_is_the_same_as_the_variable(tmp_path, monkeypatch):
     lineage = build(tmp_path / "data")
     monkeypatch.setenv("WORLDLINE_DATA_ROOT", str(tmp_path / "empty"))
     monkeypatch.setenv("PREFECT_HOME", str((tmp_path / "empty" / "prefect").resolve()))  # as flows/__init__ sets it
+    monkeypatch.delenv("DO_NOT_TRACK", raising=False)
     assert runner.invoke(app, ["summary"]).exit_code == 3  # nothing written there yet
     done = runner.invoke(app, ["--data-root", str(lineage.root), "summary", "--format", "json"])
     assert done.exit_code == 0, done.output
     assert json.loads(done.stdout)["tables"]["runs"] == 2
     assert os.environ["PREFECT_HOME"] == str((lineage.root / "prefect").resolve())  # Prefect's home follows
+    assert os.environ["DO_NOT_TRACK"] == "1"  # Prefect's telemetry notice was the first thing a terminal showed
 
 
 @pytest.fixture
@@ -171,3 +173,19 @@ def test_a_bar_moved_by_a_topic_follows_what_the_task_reports(monkeypatch, tmp_p
         guard_clips(["a.mp4", "b.mp4"], GuardConfig(enabled=False))  # off: nothing read, each clip still counted
         assert [t.completed for t in bar._bar.tasks] == [0, 2]
     ticks.advance(ticks.GUARDED)  # nobody listens now: nothing happens
+    with report.progress(3, "corpus seed 0 (frames)", topic=ticks.CORPUS_FRAMES) as bar:
+        assert list(ticks.counted("abc", ticks.CORPUS_FRAMES)) == ["a", "b", "c"]  # as the corpus writer takes frames
+        assert bar._bar.tasks[0].completed == 3
+
+
+def test_scenes_and_inspect_take_each_format(tmp_path):
+    from tests.support import scene_frames, write_video
+
+    video = write_video(tmp_path / "clip.mp4", scene_frames(0, n=24))
+    scenes = json.loads(runner.invoke(app, ["scenes", str(video), "--format", "json"]).stdout)
+    assert scenes["video"] == str(video) and scenes["scenes"]
+    rows = list(csv.DictReader(io.StringIO(runner.invoke(app, ["scenes", str(video), "--format", "csv"]).stdout)))
+    assert len(rows) == len(scenes["scenes"]) and set(rows[0]) == set(scenes["scenes"][0])
+    assert json.loads(runner.invoke(app, ["scenes", str(video), "--json"]).stdout) == scenes  # the older spelling
+    clips = list(csv.DictReader(io.StringIO(runner.invoke(app, ["inspect", str(video), "--format", "csv"]).stdout)))
+    assert clips and json.loads(clips[0]["scores"])  # scores as JSON text, every one there
