@@ -79,9 +79,26 @@ def _is_uuid(text: str) -> bool:
     return [len(p) for p in text.split("-")] == [8, 4, 4, 4, 12] and _is_hex(text.replace("-", ""))
 
 
+def _cell(value) -> str:
+    """A value as a table shows it: an id cut to 12 characters, a time to the second."""
+    from datetime import datetime
+
+    if value is None:
+        return ""
+    if isinstance(value, datetime):
+        return value.isoformat(sep=" ", timespec="seconds")
+    return str(short_id(value))
+
+
+def _atomic(value) -> bool:
+    """Never wrapped in a table: an id or a number (a time, a path or a sentence may fold)."""
+    return value is None or isinstance(value, (int, float)) or short_id(value) is not value
+
+
 def print_rows(cols: list[str], rows: list[tuple], fmt: str, title: str | None = None) -> None:
     """Rows on stdout: ``json`` (a list of objects) and ``csv`` written as they are, never
-    wrapped nor coloured, ids whole; ``table`` a rich table with ids cut to 12 characters."""
+    wrapped nor coloured, ids whole; ``table`` a rich table with ids cut to 12 characters and
+    kept on one line (other text folds to fit the terminal)."""
     import csv
     import json
     import sys
@@ -95,9 +112,16 @@ def print_rows(cols: list[str], rows: list[tuple], fmt: str, title: str | None =
     else:
         from rich.table import Table
 
-        table = Table(title=title)
-        for c in cols:
-            table.add_column(c, overflow="fold")
-        for r in rows:
-            table.add_row(*("" if v is None else Text(str(short_id(v))) for v in r))
-        out.print(table)
+        from rich import box
+
+        table = Table(title=title, box=box.SIMPLE_HEAD, show_edge=False, padding=(0, 1, 0, 0))  # room for the cells
+        cells = [[_cell(v) for v in r] for r in rows]
+        need = 2 * len(cols)
+        for i, c in enumerate(cols):
+            widest = max((len(r[i]) for r in cells), default=0)
+            whole = bool(rows) and all(_atomic(r[i]) for r in rows)  # ids and numbers whole; text folds
+            table.add_column(c, overflow="fold", no_wrap=whole, min_width=widest if whole else min(widest, 10))
+            need += widest if whole else min(widest, 10)
+        for r in cells:
+            table.add_row(*map(Text, r))
+        out.print(table, width=max(out.width, need))  # wider than the terminal rather than an id cut

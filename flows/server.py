@@ -34,8 +34,8 @@ from pathlib import Path
 from flows.server_auth import AUTH_FILE, AuthString, auth_string, child_env  # noqa: F401  (AUTH_FILE: tests)
 from flows.server_children import Child, StackError, died, group_members, spawn, stop  # noqa: F401  (tests, cli)
 from flows.server_found import announce, withdraw
-from flows.server_start import (POOL, PREFECT_FILE, deploy_flows, ensure_pool, run_server, start_server,
-                                start_worker)
+from flows.server_start import (POOL, PREFECT_FILE, deploy_flows, ensure_pool, prune_deployments, run_server,
+                                start_server, start_worker)
 from schemas.settings import Settings
 
 
@@ -53,6 +53,7 @@ class LocalStack:
         self.api_url: str | None = None
         self.auth: AuthString | None = None
         self.deploy_output = ""
+        self.pruned: list[str] = []  # deployments of an earlier prefect.yaml, deleted on start
 
     @property
     def server_pid(self) -> int | None:
@@ -78,6 +79,7 @@ class LocalStack:
             if self.deploy:
                 self.deploy_output = deploy_flows(self.api_url, self.settings, self.auth, self.prefect_file,
                                                   self.extra_env)
+                self.pruned = prune_deployments(self.api_url, self.auth, self.prefect_file)
             self.worker = start_worker(self.api_url, self.settings, self.auth, self.pool, env=self.extra_env)
         except BaseException:
             self.stop()
@@ -128,6 +130,7 @@ def serve(port: int | None = None, pool: str = POOL, deploy: bool = True) -> Non
         print(f"Prefect server pid {stack.server_pid}: API {stack.api_url}, UI {stack.api_url.removesuffix('/api')}\n"
               f"process worker pid {stack.worker_pid} on pool {pool!r}; logs in {stack.settings.prefect_home_path}\n"
               f"{stack.auth.notice()}\n"
+              + "".join(f"deleted deployment {name}: prefect.yaml names it no more\n" for name in stack.pruned) +
               f"to use it: export PREFECT_API_URL={stack.api_url} {stack.auth.export_hint()}\n"
               f"Ctrl-C stops both.", flush=True)
         while (dead := stack.dead()) is None:

@@ -116,6 +116,25 @@ def deploy_flows(api_url: str, settings: Settings, auth: AuthString, prefect_fil
     return output
 
 
+def prune_deployments(api_url: str, auth: AuthString, prefect_file: Path = PREFECT_FILE) -> list[str]:
+    """Delete the deployments an earlier prefect.yaml made (tagged ``worldline``) that this one no
+    longer names: a renamed deployment would otherwise stay in the server's database beside its
+    new name, running what its old parameters said. Returns the 'flow/name' of each deleted."""
+    import yaml
+    from prefect.client.orchestration import SyncPrefectClient
+    from prefect.client.schemas.filters import DeploymentFilter, DeploymentFilterTags
+
+    named = {d["name"] for d in yaml.safe_load(Path(prefect_file).read_text())["deployments"]}
+    ours = DeploymentFilter(tags=DeploymentFilterTags(all_=["worldline"]))
+    gone = []
+    with SyncPrefectClient(api_url, auth_string=auth.value) as client:
+        for deployment in client.read_deployments(deployment_filter=ours):
+            if deployment.name not in named:
+                client.delete_deployment(deployment.id)
+                gone.append(f"{client.read_flow(deployment.flow_id).name}/{deployment.name}")
+    return gone
+
+
 def start_worker(api_url: str, settings: Settings, auth: AuthString, pool: str = POOL, name: str | None = None,
                  env: dict[str, str] | None = None) -> Child:
     """Start a process worker on `pool` and wait until the server lists it."""

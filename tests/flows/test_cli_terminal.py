@@ -189,3 +189,19 @@ def test_scenes_and_inspect_take_each_format(tmp_path):
     assert json.loads(runner.invoke(app, ["scenes", str(video), "--json"]).stdout) == scenes  # the older spelling
     clips = list(csv.DictReader(io.StringIO(runner.invoke(app, ["inspect", str(video), "--format", "csv"]).stdout)))
     assert clips and json.loads(clips[0]["scores"])  # scores as JSON text, every one there
+
+
+def test_a_table_keeps_each_id_on_one_line_in_80_columns(monkeypatch):
+    """Issue 30: audit tables wrapped 64-hex hashes into 9-character columns in 80 columns."""
+    from datetime import datetime
+
+    shown = Console(file=io.StringIO(), width=80, color_system=None)
+    monkeypatch.setattr(console, "out", shown)
+    sha, artifact = "3a659c383a89" + "0" * 52, "d0ad0110e0268d778f43c663"
+    row = ("clip", artifact, "clips/" + "x" * 40 + ".mp4", sha, 6102, "encode", datetime(2026, 11, 26, 3, 6, 30, 172288))
+    console.print_rows(["kind", "artifact_id", "uri", "sha256", "bytes", "stage", "recorded_at"], [row], "table")
+    text = shown.file.getvalue()
+    assert max(len(line) for line in text.splitlines()) <= 80
+    first = next(line for line in text.splitlines() if line.startswith("clip"))
+    assert "d0ad0110e026 " in first and "3a659c383a89 " in first and "6102" in first  # whole, 12 characters each
+    assert sha[:13] not in text and ".172288" not in text  # cut; a time to the second

@@ -209,6 +209,23 @@ def test_a_command_uses_the_running_server_instead_of_a_temporary_one(stack, tmp
             assert api.read_flow_run(_registered_run(settings.data_root)).state.is_completed()
 
 
+@pytest.mark.slow
+def test_a_start_deletes_the_deployments_prefect_yaml_names_no_more(stack):
+    """The renamed deployments (`simulate/bin-pick-dim-forklift`, four `conveyor-push`, three
+    `default`) would stay in a data root's server database beside their new names."""
+    from flows.server_start import prune_deployments
+
+    with client(stack) as api:
+        register = api.create_flow_from_name("register")
+        stale = api.create_deployment(register, "conveyor-push", tags=["worldline", "register"], work_pool_name=POOL)
+        theirs = api.create_deployment(register, "someone-elses", tags=["mine"], work_pool_name=POOL)
+    assert prune_deployments(stack.api_url, stack.auth) == ["register/conveyor-push"]
+    with client(stack) as api:
+        left = {d.id: d.name for d in api.read_deployments()}
+        api.delete_deployment(theirs)
+    assert stale not in left and theirs in left and {d["name"] for d in LIVE} <= set(left.values())
+
+
 def test_a_prefect_api_url_nobody_answers_is_one_line_exit_5(tmp_path):
     env = {**os.environ, "WORLDLINE_DATA_ROOT": str(tmp_path), "PREFECT_HOME": str(tmp_path / "prefect"),
            "PREFECT_API_URL": "http://127.0.0.1:9/api"}  # the discard port: nothing listens
