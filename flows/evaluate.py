@@ -27,7 +27,7 @@ from schemas.records import EdgeRecord
 from schemas.settings import Settings
 from tasks import manifests
 from tasks.lookup import verified_artifact, verified_policy, verified_world_model
-from tasks.panels.contract import check_same_contract
+from tasks.panels.contract import PanelContractError, check_same_contract
 from tasks.panels.detect import DETECTOR_VERSION
 from tasks.panels.grid import expand, primary_camera, resolve_grid
 from tasks.policy.base import Policy
@@ -35,6 +35,7 @@ from tasks.policy.bc import BCPolicy
 from tasks.policy.evaluate import EpisodeOutcome, Rollout, run_episode, success_table, world_judgement
 from tasks.policy.results import agreement_line, comparison, comparison_lineage, evaluation_lineage, fmt
 from tasks.policy.specs import load_policy
+from tasks.policy.vision import VisionPolicy
 
 STAGE = "evaluate_policy"
 DEFAULT_POLICIES = ("scripted", "scripted:0.8")
@@ -53,8 +54,12 @@ def plan(manifest_paths: list[str], grid: str | None, episodes: int | None,
         out.append((path, parent, spec, variants))
     named = {f"panel {spec.name} ({path})": spec.contract for path, _, spec, _ in out}
     named.update({f"policy {p.name} (trained on {p.meta.get('manifest_hash', '?')[:12]})": p.contract
-                  for p in policies if isinstance(p, BCPolicy) and p.contract is not None})
+                  for p in policies if isinstance(p, (BCPolicy, VisionPolicy)) and p.contract is not None})
     check_same_contract(named)
+    for policy in policies:  # a vision policy must see through cameras the panel has, as it was trained
+        problems = [policy.spec.mismatch(parent) for _, parent, *_ in out] if isinstance(policy, VisionPolicy) else []
+        if any(problems):
+            raise PanelContractError(f"policy {policy.name}: {next(p for p in problems if p)}")
     return out
 
 

@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+from typing import Annotated
+
 from pydantic import Field, model_validator
 
-from flows.params import Episodes, FlowParams, Holdout, PanelEpisodes, Refused, Seed, Steps, WorldSamples, Worst
+from flows.params import (Episodes, FlowParams, Holdout, PanelEpisodes, Refused, Seed, Side, Steps, WorldSamples,
+                          Worst)
 
 GRID = "stressor grid YAML (schemas/panel.py StressorGrid); default: nominal, clean, then one stressor at a time"
 
@@ -53,6 +56,11 @@ class TrainPolicyParams(FlowParams):
     preset_name: str = Field("tiny", description="policy network preset (models/bc_policy.py PRESETS)")
     seed: Seed = 0
     holdout: Holdout = Field(10, description="held-out seeds to measure success on (seed+2000...)")
+    observe: str | None = Field(None, description="cameras a vision policy sees, comma-separated, e.g. side or "
+                                "front_left,wrist (default: a state policy reading the simulator)")
+    image_size: Side = Field(64, description="a vision policy's frames, downscaled to this square size")
+    dagger: Annotated[int, Field(ge=0, le=20)] = Field(2, description="DAgger rounds of a vision policy: the "
+                                                                     "learner drives, the scripted expert labels")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest",)
     cli_names = {"preset_name": "--preset"}
@@ -60,15 +68,34 @@ class TrainPolicyParams(FlowParams):
 
     @model_validator(mode="after")
     def _known_preset(self):
-        from models.bc_policy import PRESETS
+        from models.bc_policy import PRESETS as STATE
+        from models.vision_policy import PRESETS as VISION
 
-        if self.preset_name not in PRESETS:
-            raise Refused(f"{{preset_name}}: unknown policy preset {self.preset_name!r}; known: "
-                          f"{', '.join(sorted(PRESETS))}")
+        known = VISION if self.observe else STATE
+        if self.preset_name not in known:
+            raise Refused(f"{{preset_name}}: unknown {'vision' if self.observe else 'state'} policy preset "
+                          f"{self.preset_name!r}; known: {', '.join(sorted(known))}")
+        if self.observe is not None:
+            from tasks.policy.vision_obs import parse_cameras
+
+            try:
+                parse_cameras(self.observe)
+            except ValueError as exc:
+                raise Refused(f"{{observe}}: {str(exc).split(': ', 1)[1]}") from None
         return self
+
+    def spec(self):
+        """The vision policy's observation spec; None for a state policy."""
+        from tasks.policy.vision_obs import ObservationSpec, parse_cameras
+
+        return ObservationSpec(cameras=parse_cameras(self.observe), image_size=self.image_size) if self.observe else None
 
     def check_scenario(self, scenario) -> None:
         _drives_arms(scenario, self.manifest, "behaviour cloning drives arms")
+        spec = self.spec()
+        problem = spec.mismatch(scenario) if spec else None
+        if problem:
+            raise Refused(f"{{observe}}: {problem}")
 
 
 class LoopParams(FlowParams):

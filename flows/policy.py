@@ -2,8 +2,13 @@
 checkpoint) -> its success on held-out seeds. Checkpoint, training loss and held-out success
 land in lineage; a finished training is skipped on a re-run.
 
-Seeds: demonstrations use seed+1000 .. seed+1000+episodes-1 and the held-out check seed+2000
-onwards, so neither overlaps the seeds panels use by default (seed, seed+1, ...)."""
+A state policy reads the simulator (tasks/policy/features.py); with ``observe`` a vision policy
+sees the named cameras and the robot's proprioception only, and DAgger rounds follow its
+behaviour cloning (tasks/policy/vision.py).
+
+Seeds: demonstrations use seed+1000 .. seed+1000+episodes-1, DAgger rounds seed+1500 onwards
+and the held-out check seed+2000 onwards, so none overlaps the seeds panels use by default
+(seed, seed+1, ...)."""
 
 from __future__ import annotations
 
@@ -12,7 +17,7 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
-from flows.params import Episodes, Holdout, Seed, Steps
+from flows.params import Episodes, Holdout, Seed, Side, Steps
 from flows.params_policy import TrainPolicyParams
 from flows.recording import recorded_run
 from flows.report import markdown_table, publish
@@ -22,12 +27,13 @@ from schemas.records import MetricRecord
 from schemas.settings import Settings
 from tasks import manifests
 from tasks.checkpoint_files import CONFIG_FILE
-from tasks.policy import bc
+from tasks.policy import bc, vision, vision_train
 from tasks.policy.features import FEATURES_VERSION
 from tasks.policy.lineage import checkpoint_lineage
+from tasks.policy.vision import VisionPolicy
 
 STAGE = "train_policy"
-TRAIN_OFFSET, HOLDOUT_OFFSET = 1000, 2000
+TRAIN_OFFSET, DAGGER_OFFSET, HOLDOUT_OFFSET = 1000, 1500, 2000
 
 load_manifest = task(manifests.load, name="load-manifest")
 collect = task(bc.collect, name="collect-demonstrations", retries=1, cache_policy=NO_CACHE)
@@ -41,37 +47,68 @@ def train(demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path, scenar
     return model, history
 
 
+@task(name="train-vision-dagger", cache_policy=NO_CACHE)
+def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], config: bc.TrainConfig, folder: Path,
+                 extra: dict):
+    """Behaviour cloning on the expert's camera demonstrations, then DAgger rounds."""
+    demos = vision.collect(scenario, seeds, spec)
+    model, history = vision_train.train_vision(demos, spec, config)
+    model, demos, more = vision_train.dagger(scenario, spec, demos, model, rounds,
+                                             config, offset=config.steps)
+    learner = sorted({(row["round"], row["learner_success"]) for row in more})
+    vision_train.save_checkpoint(model, spec, folder, scenario, config, {
+        **extra, "demonstrations": int(len(demos.act)), "successes": sum(demos.successes[:len(seeds)]),
+        "dagger_rounds": [{"round": k, "seeds": rounds[k - 1], "learner_success": r} for k, r in learner]})
+    return history + more, learner
+
+
 @flow(name="train-policy", log_prints=True)
 def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, preset_name: str = "tiny", seed: Seed = 0,
-                 holdout: Holdout = 10) -> dict:
-    """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations."""
+                 holdout: Holdout = 10, observe: str | None = None, image_size: Side = 64, dagger: int = 2) -> dict:
+    """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations;
+    with ``observe``, a vision policy on those cameras, then ``dagger`` DAgger rounds."""
     checks = TrainPolicyParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
     scenario = load_manifest(Path(manifest))
     checks.check_scenario(scenario)
-    config = bc.TrainConfig(preset=preset_name, steps=steps, seed=seed)
+    spec = checks.spec()
+    config = bc.TrainConfig(preset=preset_name, steps=steps, seed=seed, batch_size=64 if spec else 256)
     train_seeds = list(range(scenario.seed + TRAIN_OFFSET, scenario.seed + TRAIN_OFFSET + episodes))
     test_seeds = list(range(scenario.seed + HOLDOUT_OFFSET, scenario.seed + HOLDOUT_OFFSET + holdout))
+    per_round = max(4, episodes // 2)
+    rounds = [list(range(scenario.seed + DAGGER_OFFSET + k * per_round, scenario.seed + DAGGER_OFFSET + (k + 1) * per_round))
+              for k in range(dagger)] if spec else []
     with recorded_run("train-policy", settings, scenario, source_uri=manifest,
                       params={"manifest": manifest, "episodes": episodes, "steps": steps, "preset": preset_name,
-                              "seed": seed, "holdout": holdout}) as run:
-        key = stable_id(STAGE, run.manifest_hash, content_hash(config), str(FEATURES_VERSION), *map(str, train_seeds))
+                              "seed": seed, "holdout": holdout, "observe": observe, "image_size": image_size,
+                              "dagger": dagger}) as run:
+        seen = [content_hash(spec.model_dump(mode="json")), *map(str, sum(rounds, []))] if spec else []
+        key = stable_id(STAGE, run.manifest_hash, content_hash(config), str(FEATURES_VERSION), *map(str, train_seeds), *seen)
         checkpoint_id = stable_id("checkpoint", key)
-        folder = paths.resolve(root, paths.CHECKPOINT_DIR, model="bc-policy", checkpoint_id=checkpoint_id)
+        model_name = "vision-policy" if spec else "bc-policy"
+        folder = paths.resolve(root, paths.CHECKPOINT_DIR, model=model_name, checkpoint_id=checkpoint_id)
         history, rate, outcomes = [], None, []
         stage = run.stage(STAGE, key, [folder / bc.WEIGHTS_FILE])
         if not stage.done:
-            demos = collect(scenario, train_seeds)
-            model, history = train(demos, config, folder, scenario,
-                                   {"checkpoint_id": checkpoint_id, "train_seeds": train_seeds,
-                                    "demonstrations": int(len(demos.obs)), "successes": sum(demos.successes)})
-            policy = bc.BCPolicy.from_checkpoint(folder)
+            extra = {"checkpoint_id": checkpoint_id, "train_seeds": train_seeds}
+            if spec:
+                history, learner = train_seeing(scenario, spec, train_seeds, rounds, config, folder, extra)
+                policy = VisionPolicy.from_checkpoint(folder)
+            else:
+                demos = collect(scenario, train_seeds)
+                model, history = train(demos, config, folder, scenario,
+                                       {**extra, "demonstrations": int(len(demos.obs)), "successes": sum(demos.successes)})
+                policy, learner = bc.BCPolicy.from_checkpoint(folder), []
             rate, outcomes = held_out(scenario, policy, test_seeds) if test_seeds else (None, [])
             attrs = {"preset": preset_name, "steps": steps, "train_seeds": train_seeds, "held_out_seeds": test_seeds,
                      "held_out_success_rate": rate, "config": (folder / CONFIG_FILE).relative_to(root).as_posix()}
+            if spec:
+                attrs |= {"observe": list(spec.cameras), "image_size": spec.image_size, "dagger_seeds": rounds,
+                          "dagger_learner_success": [r for _, r in learner]}
             batch = checkpoint_lineage(checkpoint_id, folder / bc.WEIGHTS_FILE, root, stage.id, run.manifest_hash,
-                                       attrs, [(run.manifest_hash, "trained_on")], "train_loss", history)
+                                       {"model": model_name, **attrs}, [(run.manifest_hash, "trained_on")],
+                                       "train_loss", history)
             if rate is not None:
                 batch.metrics.append(MetricRecord(subject_id=checkpoint_id, name="held_out_success_rate", value=rate,
                                                   stage_run_id=stage.id, manifest_hash=run.manifest_hash,

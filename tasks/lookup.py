@@ -19,7 +19,7 @@ from tasks import integrity
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError
 from warehouse import integrity as claims
 from warehouse import queries
-from warehouse.queries import BC_POLICY, POSTTRAINED_WORLD_MODEL
+from warehouse.queries import BC_POLICY, POSTTRAINED_WORLD_MODEL, VISION_POLICY
 from warehouse.store import Warehouse
 
 
@@ -147,9 +147,10 @@ def world_model_folder(warehouse: Warehouse | None, root: Path, name: str | None
 
 
 def policy_spec(warehouse: Warehouse | None, root: Path, spec: str) -> str:
-    """``bc:ID`` with ID a behaviour-cloning checkpoint's id prefix becomes ``bc:FOLDER``; every
-    other policy name is returned as it is."""
+    """``bc:ID`` or ``vision:ID`` with ID a policy checkpoint's id prefix becomes ``KIND:FOLDER``;
+    every other policy name is returned as it is."""
     kind, _, arg = spec.partition(":")
-    if kind != "bc" or not arg or Path(arg).exists() or not is_hex_id(arg):
+    if kind not in ("bc", "vision") or not arg or Path(arg).exists() or not is_hex_id(arg):
         return spec
-    return f"bc:{checkpoint_folder(warehouse, root, arg, BC_POLICY, 'behaviour-cloning policy')}"
+    condition, what = (BC_POLICY, "behaviour-cloning policy") if kind == "bc" else (VISION_POLICY, "vision policy")
+    return f"{kind}:{checkpoint_folder(warehouse, root, arg, condition, what)}"

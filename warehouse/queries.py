@@ -1,5 +1,5 @@
 """The lineage questions the flows and the CLI ask, each a named function: no SQL outside
-warehouse/. Conditions on a checkpoint's attrs (``POSTTRAINED_WORLD_MODEL``, ``BC_POLICY``,
+warehouse/. Conditions on a checkpoint's attrs (``POSTTRAINED_WORLD_MODEL``, ``BC_POLICY``, ``VISION_POLICY``,
 `tokenizer_condition`) are passed to the checkpoint queries by name."""
 
 from __future__ import annotations
@@ -10,6 +10,7 @@ from warehouse.store import Warehouse
 
 POSTTRAINED_WORLD_MODEL = "attrs->>'model' = 'world_model' AND attrs->>'phase' = 'posttrain'"
 BC_POLICY = "attrs->>'model' = 'bc-policy'"
+VISION_POLICY = "attrs->>'model' = 'vision-policy'"
 
 
 def tokenizer_condition(variant: str | None) -> str:

@@ -14,7 +14,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import math
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -33,6 +32,7 @@ from schemas.panel import PanelContract, contract_hash, panel_contract
 from tasks.checkpoint_files import (WEIGHTS_FILE, CheckpointError, load_weights, model_config, read_config,
                                      write_checkpoint)
 from tasks.policy.base import Policy
+from tasks.policy.fit import fit
 from tasks.policy.features import FEATURES_VERSION, arm_features, obs_size
 from tasks.sim.control import MAX_STEP, MAX_YAW_STEP, ArmController, make_controller
 from tasks.sim.episode import rollout
@@ -69,9 +69,11 @@ def require_arm(manifest: ScenarioManifest) -> None:
 
 
 def physics_only(manifest: ScenarioManifest) -> ScenarioManifest:
-    """The manifest with tiny, slow cameras: the same physics (cameras never touch it, and
-    the occluder is placed from the unchanged camera position) at a fraction of the render cost."""
-    cams = tuple(c.model_copy(update={"resolution": (16, 16), "fps": 1.0}) for c in manifest.cameras)
+    """The manifest with its cameras slowed to 1 fps: the same physics (cameras never touch it)
+    at a fraction of the render cost of the episode's videos, which collection and evaluation
+    never read. Resolutions stay, so a vision policy's own renderer has the model's offscreen
+    buffer it needs to see through the manifest's cameras."""
+    cams = tuple(c.model_copy(update={"fps": 1.0}) for c in manifest.cameras)
     return manifest.model_copy(update={"cameras": cams})
 
 
@@ -139,26 +141,8 @@ def train_bc(demos: Demonstrations, config: TrainConfig = TrainConfig(),
             model = BCPolicyNet(preset(config.preset, obs.shape[1]))
             model.set_statistics(obs, act)
         target = (act - model.act_mean) / model.act_std
-        optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=1e-4)
-        schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, config.steps, eta_min=config.lr * 0.05)
-        gen = torch.Generator().manual_seed(config.seed)
-        history, t0, every = [], time.perf_counter(), max(1, config.steps // 20)
-        running = None
-        model.train()
-        for step in range(1, config.steps + 1):
-            batch = torch.randint(0, obs.shape[0], (min(config.batch_size, obs.shape[0]),), generator=gen)
-            loss = torch.nn.functional.mse_loss(model.forward_normalised(obs[batch]), target[batch])
-            optimiser.zero_grad(set_to_none=True)
-            loss.backward()
-            optimiser.step()
-            schedule.step()
-            running = loss.item() if running is None else 0.9 * running + 0.1 * loss.item()
-            if step == 1 or step % every == 0 or step == config.steps:
-                record = {"step": step, "loss": float(loss.item()), "smoothed_loss": float(running),
-                          "seconds": round(time.perf_counter() - t0, 3)}
-                history.append(record)
-                if log:
-                    log(record)
+        history = fit(model, lambda b: torch.nn.functional.mse_loss(model.forward_normalised(obs[b]), target[b]),
+                      obs.shape[0], config, log)
         return model.eval(), history
     finally:
         torch.set_num_threads(threads)

@@ -16,7 +16,7 @@ def checkpoint_lineage(checkpoint_id: str, weights: Path, root: Path, stage_run_
         artifacts=[ArtifactRecord(artifact_id=checkpoint_id, kind="checkpoint", uri=weights.relative_to(root).as_posix(),
                                   sha256=sha256_file(str(weights)), bytes=weights.stat().st_size,
                                   manifest_hash=digest, stage_run_id=stage_run_id,
-                                  attrs={"model": "bc-policy", **attrs})],
+                                  attrs={"model": "bc-policy", **attrs})],  # attrs may name another model
         edges=[EdgeRecord(parent_id=parent, child_id=checkpoint_id, relation=relation) for parent, relation in parents],
         metrics=[MetricRecord(subject_id=checkpoint_id, name=loss, step=h["step"], value=h["loss"],
                               stage_run_id=stage_run_id, manifest_hash=digest) for h in history])

@@ -10,6 +10,7 @@ from schemas.hashing import sha256_file, stable_id
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord
 from tasks.policy.base import Policy
 from tasks.policy.bc import BCPolicy
+from tasks.policy.vision import VisionPolicy
 from tasks.policy.evaluate import agreement, spearman
 
 
@@ -26,8 +27,9 @@ def evaluation_lineage(evaluation_id: str, result_file: Path, root: Path, body: 
         sha256=sha256_file(str(result_file)), bytes=result_file.stat().st_size, manifest_hash=digest,
         stage_run_id=stage_run_id, attrs=attrs)],
         edges=[EdgeRecord(parent_id=panel_id, child_id=evaluation_id, relation="evaluated_on")])
-    if isinstance(policy, BCPolicy):
-        checkpoint_id = policy.meta.get("checkpoint_id") or stable_id("checkpoint", "bc", policy.meta["weights_sha256"])
+    if isinstance(policy, (BCPolicy, VisionPolicy)):
+        kind = "bc" if isinstance(policy, BCPolicy) else "vision"
+        checkpoint_id = policy.meta.get("checkpoint_id") or stable_id("checkpoint", kind, policy.meta["weights_sha256"])
         weights = Path(policy.source) / "model.safetensors"
         uri = weights.resolve().relative_to(root.resolve()).as_posix() if weights.resolve().is_relative_to(root.resolve()) \
             else str(weights)
@@ -35,7 +37,7 @@ def evaluation_lineage(evaluation_id: str, result_file: Path, root: Path, body: 
         batch.artifacts.insert(0, ArtifactRecord(artifact_id=checkpoint_id, kind="checkpoint", uri=uri,
                                                  sha256=policy.meta["weights_sha256"], bytes=weights.stat().st_size,
                                                  manifest_hash=policy.meta.get("manifest_hash"),
-                                                 attrs={"model": "bc-policy", "registered_by": "evaluate"}))
+                                                 attrs={"model": f"{kind}-policy", "registered_by": "evaluate"}))
         batch.edges.append(EdgeRecord(parent_id=checkpoint_id, child_id=evaluation_id, relation="policy"))
     for row in body["table"]:
         suffix = "" if row["cell"] == "all" else f"/{row['cell']}"

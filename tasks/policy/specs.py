@@ -1,5 +1,5 @@
 """Policies named on a command line: ``scripted`` (the manifest's noise), ``scripted:0.8``,
-``bc:PATH`` (a behaviour-cloning checkpoint folder)."""
+``bc:PATH`` (a state policy's checkpoint folder), ``vision:PATH`` (a vision policy's)."""
 
 from __future__ import annotations
 
@@ -21,13 +21,15 @@ def load_policy(spec: str) -> Policy:
             return ScriptedPolicy(float(arg))
         except ValueError as exc:
             raise PolicySpecError(f"policy {spec!r}: {exc}") from None
-    if kind == "bc":
-        from tasks.policy.bc import BCPolicy
-
+    if kind in ("bc", "vision"):
+        if kind == "bc":
+            from tasks.policy.bc import BCPolicy as Kind
+        else:
+            from tasks.policy.vision import VisionPolicy as Kind
         if not arg:
-            raise PolicySpecError(f"policy {spec!r}: name a checkpoint folder, bc:PATH")
+            raise PolicySpecError(f"policy {spec!r}: name a checkpoint folder, {kind}:PATH")
         try:
-            return BCPolicy.from_checkpoint(Path(arg))
+            return Kind.from_checkpoint(Path(arg))
         except (FileNotFoundError, ValueError, KeyError) as exc:
             raise PolicySpecError(f"policy {spec!r}: {exc}") from None
-    raise PolicySpecError(f"policy {spec!r}: unknown kind {kind!r} (scripted, scripted:NOISE or bc:PATH)")
+    raise PolicySpecError(f"policy {spec!r}: unknown kind {kind!r} (scripted, scripted:NOISE, bc:PATH or vision:PATH)")

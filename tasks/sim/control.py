@@ -173,15 +173,21 @@ class ArmController:
                 self._go("approach")
         return goal, yaw, grip, step
 
-    def step(self, data: mujoco.MjData) -> np.ndarray:
-        """Choose, noise and apply one control step's action; returns the action applied."""
+    def plan(self, data: mujoco.MjData) -> tuple[np.ndarray, float, float]:
+        """The noiseless move from the commanded pose: (delta, dyaw, grip); advances the phase.
+        An expert labelling a learner's states (DAgger) sets ``target_pos``, ``target_yaw``
+        and ``grip`` to the learner's, then asks for this."""
         goal, yaw, grip, step = self._bin_pick(data) if self.task == "bin_pick" else self._push(data)
         self.phase_t += self.dt
         delta = goal - self.target_pos
         norm = float(np.linalg.norm(delta))
         if norm > step:
             delta *= step / norm
-        dyaw = float(np.clip(yaw - self.target_yaw, -MAX_YAW_STEP, MAX_YAW_STEP))
+        return delta, float(np.clip(yaw - self.target_yaw, -MAX_YAW_STEP, MAX_YAW_STEP)), grip
+
+    def step(self, data: mujoco.MjData) -> np.ndarray:
+        """Choose, noise and apply one control step's action; returns the action applied."""
+        delta, dyaw, grip = self.plan(data)
         if self.noise and self.space != "joint_position":
             delta = delta + self.rng.normal(0.0, self.noise * NOISE_STEP, 3)
             dyaw += float(self.rng.normal(0.0, self.noise * NOISE_STEP * 5))

@@ -214,14 +214,19 @@ def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig
                     next_frame[c.name] = j + 1
 
         capture(d)
-        for k in range(steps):
-            out["time"].append(k / config.control_hz)
-            out["qpos"].append(d.qpos[qadr].copy())
-            out["qvel"].append(d.qvel[vadr].copy())
-            out["pose"].append(np.concatenate([d.xpos[objs], d.xquat[objs]], axis=1))
-            out["flag"].append(_target_holds(sim, rest_z))
-            out["estop"].append(sim.estop_reason is not None)
-            out["action"].append(sim.advance(capture))
+        try:
+            for k in range(steps):
+                out["time"].append(k / config.control_hz)
+                out["qpos"].append(d.qpos[qadr].copy())
+                out["qvel"].append(d.qvel[vadr].copy())
+                out["pose"].append(np.concatenate([d.xpos[objs], d.xquat[objs]], axis=1))
+                out["flag"].append(_target_holds(sim, rest_z))
+                out["estop"].append(sim.estop_reason is not None)
+                out["action"].append(sim.advance(capture))
+        finally:
+            close = getattr(sim.controller, "close", None)  # a vision policy's renderer
+            if close is not None:
+                close()
     flag = np.array(out["flag"], bool)
     success, reason = _verdict(sim, rest_z)
     return Episode(manifest=manifest, seed=seed, control_hz=config.control_hz,

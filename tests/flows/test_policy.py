@@ -3,6 +3,8 @@ all in lineage; a finished training is found done on a re-run."""
 
 from pathlib import Path
 
+import pytest
+
 from flows.policy import train_policy
 from schemas.settings import Settings
 from tasks.policy.bc import BCPolicy
@@ -37,3 +39,30 @@ def test_train_policy_records_checkpoint_loss_and_held_out_success(prefect_harne
 
     again = train_policy(str(manifest), episodes=2, steps=20, holdout=1)
     assert again["checkpoint_id"] == result["checkpoint_id"] and again["history"] == []  # found done
+
+
+def test_train_policy_with_cameras_records_a_vision_checkpoint_that_evaluate_refuses_elsewhere(
+        prefect_harness, data_root, tmp_path):
+    from flows.evaluate import plan
+    from tasks.panels.contract import PanelContractError
+    from tasks.policy.specs import load_policy
+    from tasks.policy.vision import VisionPolicy
+
+    manifest = tmp_path / "closeup.yaml"
+    manifest.write_text((MANIFESTS / "push_closeup.yaml").read_text().replace("horizon_s: 6.0", "horizon_s: 3.0"))
+    result = train_policy(str(manifest), episodes=2, steps=6, holdout=1, observe="side", image_size=32, dagger=1)
+    policy = VisionPolicy.from_checkpoint(result["folder"])
+    assert policy.spec.cameras == ("side",) and policy.meta["dagger_rounds"][0]["seeds"] == [1521, 1522, 1523, 1524]
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, (row,) = wh.query("SELECT attrs->>'model', attrs->>'observe' FROM artifacts WHERE artifact_id = $c",
+                             {"c": result["checkpoint_id"]})
+        _, steps = wh.query("SELECT max(step) FROM metrics WHERE subject_id = $c AND name = 'train_loss'",
+                            {"c": result["checkpoint_id"]})
+    assert row == ("vision-policy", '["side"]') and steps == [(12,)]  # 6 steps, then one DAgger round of 6
+
+    # The state policy of the same manifest is another checkpoint; a panel without its camera is refused.
+    assert train_policy(str(manifest), episodes=2, steps=6, holdout=0)["checkpoint_id"] != result["checkpoint_id"]
+    other = tmp_path / "overhead.yaml"
+    other.write_text(manifest.read_text().replace("name: side", "name: top"))
+    with pytest.raises(PanelContractError, match="contracts differ in camera layout: top vs side"):
+        plan([str(other)], None, 1, [load_policy(f"vision:{result['folder']}")])

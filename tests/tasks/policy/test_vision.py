@@ -1,0 +1,117 @@
+"""The vision policy: what it observes (cameras and proprioception, never object state),
+demonstrations and DAgger labels from the scripted expert, training, checkpoints, refusals."""
+
+import numpy as np
+import pytest
+import torch
+
+import mujoco
+from tasks.manifests import load
+from tasks.policy.bc import TrainConfig
+from tasks.policy.specs import PolicySpecError, load_policy
+from tasks.policy.vision import VisionPolicy, collect
+from tasks.policy.vision_obs import ObservationSpec, Observer, parse_cameras, proprio
+from tasks.policy.vision_train import dagger, load_checkpoint, save_checkpoint, train_vision
+from tasks.sim.control import ArmController
+from tasks.sim.scene import build_scene
+
+from tests.support import MANIFESTS
+
+PUSH = load(MANIFESTS / "push_closeup.yaml").model_copy(update={"horizon_s": 1.0})
+SPEC = ObservationSpec(cameras=("side",), image_size=32)
+
+
+def _moved_package(scene, shift):
+    data = mujoco.MjData(scene.model)
+    data.qpos[:] = scene.initial_qpos
+    body = scene.model.body(scene.objects[0])
+    qadr = scene.model.jnt_qposadr[scene.model.body_jntadr[body.id]]
+    data.qpos[qadr: qadr + 2] += shift
+    mujoco.mj_forward(scene.model, data)
+    return data
+
+
+def test_proprioception_ignores_the_package_and_the_camera_sees_it():
+    scene = build_scene(PUSH, 3)
+    arm = ArmController(scene, 3, noise=0.0)
+    here, there = _moved_package(scene, [0.0, 0.0]), _moved_package(scene, [0.06, -0.04])
+    arm.reset(here)
+    assert np.array_equal(proprio(here, arm), proprio(there, arm))
+    observer = Observer(scene, SPEC)
+    try:
+        a = observer.frames(here)
+        observer.next_frame = [0]  # a new frame is due
+        b = observer.frames(there)
+    finally:
+        observer.close()
+    assert a.shape == (1, 3, 32, 32) and a.dtype == np.uint8
+    assert np.abs(a.astype(int) - b.astype(int)).sum() > 0
+
+
+def test_a_camera_frame_is_held_until_the_next_is_due():
+    scene = build_scene(PUSH, 3)
+    data = _moved_package(scene, [0.0, 0.0])
+    observer = Observer(scene, SPEC)
+    try:
+        first = observer.frames(data)
+        data.qpos[:] += 0.01
+        mujoco.mj_forward(scene.model, data)
+        data.time = 0.05  # side films at 10 fps: the next frame is due at 0.1 s
+        assert np.array_equal(observer.frames(data), first)
+        data.time = 0.1
+        assert not np.array_equal(observer.frames(data), first)
+    finally:
+        observer.close()
+
+
+def test_observation_specs_are_checked_against_the_manifest():
+    assert ObservationSpec(cameras=("wrist",)).mismatch(PUSH).startswith("the policy observes camera(s) wrist")
+    assert "64x64" in ObservationSpec(cameras=("side",), image_size=96).mismatch(PUSH)
+    assert SPEC.mismatch(PUSH) is None
+    assert parse_cameras("front_left, wrist") == ("front_left", "wrist")
+    for bad in ("", "a,,b", "a,a"):
+        with pytest.raises(ValueError, match="distinct cameras"):
+            parse_cameras(bad)
+
+
+@pytest.fixture(scope="module")
+def demos():
+    return collect(PUSH, [1, 2], SPEC, successes_only=False)
+
+
+def test_demonstrations_record_what_the_expert_saw_and_commanded(demos):
+    steps = round(PUSH.horizon_s * 50)
+    assert demos.frames.shape == (2 * steps, 1, 3, 32, 32) and demos.proprio.shape[0] == 2 * steps
+    assert demos.act.shape == (2 * steps, 5) and set(demos.round) == {0}
+    assert np.all(np.linalg.norm(demos.act[:, :3], axis=1) < 0.05)  # moves, not positions
+
+
+def test_training_fits_and_a_checkpoint_acts_the_same_after_loading(demos, tmp_path):
+    config = TrainConfig(steps=60, batch_size=32, lr=3e-3)
+    model, history = train_vision(demos, SPEC, config)
+    assert history[-1]["smoothed_loss"] < history[0]["loss"]
+    again, _ = train_vision(demos, SPEC, config)
+    assert all(torch.equal(a, b) for a, b in zip(model.state_dict().values(), again.state_dict().values()))
+    save_checkpoint(model, SPEC, tmp_path / "ck", PUSH, config, {"checkpoint_id": "c" * 64})
+    loaded, spec, meta = load_checkpoint(tmp_path / "ck")
+    assert spec == SPEC and meta["observe"]["cameras"] == ["side"]
+    x, p = torch.from_numpy(demos.frames[:4]), torch.from_numpy(demos.proprio[:4])
+    with torch.inference_mode():
+        assert torch.allclose(model(x, p), loaded(x, p))
+    policy = load_policy(f"vision:{tmp_path / 'ck'}")
+    assert isinstance(policy, VisionPolicy) and policy.name == "vision:" + "c" * 12
+    with pytest.raises(PolicySpecError, match="not a vision-policy checkpoint"):
+        load_policy(f"vision:{tmp_path}")
+
+
+def test_dagger_labels_the_learners_own_states_with_the_experts_moves(demos):
+    model, _ = train_vision(demos, SPEC, TrainConfig(steps=5, batch_size=16))
+    grown, aggregate, history = dagger(PUSH, SPEC, demos, model, [[7]], TrainConfig(steps=4, batch_size=16),
+                                       offset=5)
+    added = aggregate.round == 1
+    assert added.sum() == round(PUSH.horizon_s * 50) and len(aggregate.act) == len(demos.act) + added.sum()
+    assert aggregate.seeds == (1, 2, 7) and set(aggregate.episode[added]) == {2}
+    assert [row["round"] for row in history] and history[0]["step"] == 6
+    # A barely trained learner does not follow the expert: its states are its own, not a demonstration's.
+    assert not np.allclose(aggregate.proprio[added][-1], demos.proprio[len(demos.act) // 2 - 1])
+    assert np.all(np.isfinite(aggregate.act[added]))
