@@ -30,7 +30,7 @@ from tasks import loop as steps
 from tasks import manifests
 from tasks.lookup import verified_policy
 from tasks.panels.grid import resolve_grid
-from tasks.policy import bc
+from tasks.policy import bc, posttrain
 from tasks.policy.features import FEATURES_VERSION
 from tasks.policy.lineage import checkpoint_lineage
 from tasks.policy.specs import load_policy
@@ -41,7 +41,6 @@ STAGE = "post_train_policy"
 FRESH_DEMOS, FRESH_STEPS = 3, 400
 
 load_manifest = task(manifests.load, name="load-manifest")
-collect = task(bc.collect, name="collect-demonstrations", retries=1, cache_policy=NO_CACHE)
 
 
 @task(name="write-derived-manifests")
@@ -55,30 +54,8 @@ def write_derived(derived: list[ScenarioManifest], root: Path) -> list[Path]:
     return out
 
 
-@task(name="post-train-bc", cache_policy=NO_CACHE)
-def tune(policy: bc.BCPolicy, demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path,
-         parent: ScenarioManifest, extra: dict) -> list[dict]:
-    model, history = bc.train_bc(demos, config, start=policy.model)
-    bc.save_checkpoint(model, folder, parent, config, extra)
-    return history
-
-
-def demonstrations(parent: ScenarioManifest, policy: bc.BCPolicy, derived: list[ScenarioManifest],
-                   counts: list[int]) -> bc.Demonstrations:
-    """Scripted demonstrations on the derived manifests' new seeds, plus the policy's own
-    training seeds when it was trained on this parent; a manifest the scripted controller
-    never solves adds nothing."""
-    parts = []
-    if policy.meta.get("manifest_hash") == parent.sha256 and policy.meta.get("train_seeds"):
-        parts.append(collect(parent, policy.meta["train_seeds"]))
-    for m, n in zip(derived, counts):
-        try:
-            parts.append(collect(m, [m.seed + i for i in range(n)]))
-        except ValueError as exc:  # no successful demonstration on these seeds
-            print(f"{m.name}: {exc}")
-    if not parts:
-        raise ValueError("no successful demonstrations on the derived manifests to post-train on")
-    return steps.merge(parts)
+collect_demonstrations = task(posttrain.demonstrations, name="collect-demonstrations", retries=1, cache_policy=NO_CACHE)
+tune = task(posttrain.post_train, name="post-train-policy", cache_policy=NO_CACHE)
 
 
 def generate(derived: ScenarioManifest, path: Path, n: int, root: Path) -> dict:
@@ -89,7 +66,7 @@ def generate(derived: ScenarioManifest, path: Path, n: int, root: Path) -> dict:
     return {**simulated, "shards": curate(videos, str(path))["shards"]}
 
 
-def post_train_policy(run: RunContext, parent: ScenarioManifest, old: bc.BCPolicy, old_id: str,
+def post_train_policy(run: RunContext, parent: ScenarioManifest, old: posttrain.Learned, old_id: str,
                       derived: list[ScenarioManifest], counts: list[int], post_steps: int, root: Path) -> tuple[str, Path]:
     """The old policy fine-tuned on the derived manifests' demonstrations; a finished one is reused."""
     config = bc.TrainConfig(steps=post_steps)
@@ -97,18 +74,18 @@ def post_train_policy(run: RunContext, parent: ScenarioManifest, old: bc.BCPolic
     key = stable_id(STAGE, old_id, content_hash(config), str(FEATURES_VERSION),
                     *(f"{d}:{n}" for d, n in zip(digests, counts)))
     checkpoint_id = stable_id("checkpoint", key)
-    folder = paths.resolve(root, paths.CHECKPOINT_DIR, model="bc-policy", checkpoint_id=checkpoint_id)
+    folder = paths.resolve(root, paths.CHECKPOINT_DIR, model=posttrain.model_name(old), checkpoint_id=checkpoint_id)
     stage = run.stage(STAGE, key, [folder / bc.WEIGHTS_FILE])
     if not stage.done:
-        demos = demonstrations(parent, old, derived, counts)
+        demos = collect_demonstrations(parent, old, derived, counts)
         seeds = {d: [m.seed + i for i in range(n)] for d, m, n in zip(digests, derived, counts)}
         history = tune(old, demos, config, folder, parent,
                        {"checkpoint_id": checkpoint_id, "posttrained_from": old_id, "derived_seeds": seeds,
-                        "demonstrations": int(len(demos.obs))})
+                        "demonstrations": posttrain.samples(demos)})
         episodes = queries.episode_ids(run.warehouse, digests)
         stage.finish(len(episodes), 1, checkpoint_lineage(
             checkpoint_id, folder / bc.WEIGHTS_FILE, root, stage.id, run.manifest_hash,
-            {"steps": post_steps, "posttrained_from": old_id, "derived": digests},
+            {"model": posttrain.model_name(old), "steps": post_steps, "posttrained_from": old_id, "derived": digests},
             [(old_id, steps.RELATION_POSTTRAINED), *((e, "trained_on") for e in episodes)], "post_train_loss",
             history), attrs={"checkpoint_id": checkpoint_id, "from": old_id})
     return checkpoint_id, folder
@@ -125,7 +102,7 @@ def summarise(table: list[dict], derived: list[ScenarioManifest], counts: list[i
 @flow(name="loop", log_prints=True)
 def loop(manifest: str, policy: str | None = None, grid: str | None = None, episodes: PanelEpisodes | None = None,
          worst: Worst = 1, new_episodes: Episodes = 12, post_steps: Steps = 2000) -> dict:
-    """Close the loop once for ``policy`` (``bc:PATH``; default: a weak policy trained here on
+    """Close the loop once for ``policy`` (``bc:PATH`` or ``vision:PATH``; default: a weak state policy trained here on
     a few demonstrations) on the panel of ``manifest`` over ``grid``: the ``worst`` cells get
     ``new_episodes`` in all, in proportion to their failure rate."""
     checks = LoopParams.of(locals())  # every parameter check, for a deployment as for the CLI
@@ -140,10 +117,9 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
         if policy is None:
             policy = "bc:" + train_policy(manifest, episodes=FRESH_DEMOS, steps=FRESH_STEPS, holdout=0)["folder"]
         old = load_policy(policy)
-        if not isinstance(old, bc.BCPolicy):
-            raise ValueError(f"policy {policy!r}: the loop post-trains behaviour-cloning policies (bc:PATH)")
+        kind = posttrain.kind_of(old)  # ValueError unless a learned policy
         verified_policy(run.warehouse, root, old)  # the weights it fine-tunes, as lineage recorded them
-        old_id = old.meta.get("checkpoint_id") or stable_id("checkpoint", "bc", old.meta["weights_sha256"])
+        old_id = old.meta.get("checkpoint_id") or stable_id("checkpoint", kind, old.meta["weights_sha256"])
 
         before = evaluate(manifest, grid, episodes, [policy], detector=False)["evaluations"][0]
         picked = steps.worst_cells(before["table"], worst)
@@ -155,14 +131,14 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
         made = [generate(m, path, n, root) for m, path, n in zip(derived, files, counts)]
         checkpoint_id, folder = post_train_policy(run, parent, old, old_id, derived, counts, post_steps, root)
 
-        after = evaluate(manifest, grid, episodes, [f"bc:{folder}"], detector=False)["evaluations"][0]
+        after = evaluate(manifest, grid, episodes, [f"{kind}:{folder}"], detector=False)["evaluations"][0]
         table = steps.before_after(before["table"], after["table"], [cell for cell, _ in picked])
         run.write(LineageBatch(metrics=[MetricRecord(
             subject_id=checkpoint_id, name="loop_success_rate" + ("" if r["cell"] == "all" else f"/{r['cell']}"),
             value=r["after"], manifest_hash=run.manifest_hash,
             attrs={"before": r["before"], "before_evaluation": before["evaluation_id"]})
             for r in table if r["after"] is not None]))
-        text = summarise(table, derived, counts, picked, f"{old.name} -> bc:{checkpoint_id[:12]} on {before['panel']}")
+        text = summarise(table, derived, counts, picked, f"{old.name} -> {kind}:{checkpoint_id[:12]} on {before['panel']}")
         print(text)
         return {"before_evaluation_id": before["evaluation_id"], "after_evaluation_id": after["evaluation_id"],
                 "table": table, "derived": [{"manifest_hash": d, "path": str(p), "cell": c, "episodes": n,

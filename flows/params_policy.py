@@ -81,7 +81,7 @@ class TrainPolicyParams(FlowParams):
             try:
                 parse_cameras(self.observe)
             except ValueError as exc:
-                raise Refused(f"{{observe}}: {str(exc).split(': ', 1)[1]}") from None
+                raise Refused(f"{{observe}} {self.observe!r}: {str(exc).split(': ', 1)[1]}") from None
         return self
 
     def spec(self):
@@ -100,8 +100,8 @@ class TrainPolicyParams(FlowParams):
 
 class LoopParams(FlowParams):
     manifest: str = Field(description="scenario manifest YAML")
-    policy: str | None = Field(None, description="bc:CHECKPOINT_FOLDER or bc:CHECKPOINT_ID (default: a weak policy "
-                                                 "trained in-flow)")
+    policy: str | None = Field(None, description="bc: or vision: CHECKPOINT_FOLDER or CHECKPOINT_ID (default: a weak "
+                                                 "state policy trained in-flow)")
     grid: str | None = Field(None, description="stressor grid YAML (default: one stressor at a time)")
     episodes: PanelEpisodes | None = Field(None, description="seeds per cell (default: the grid's)")
     worst: Worst = Field(1, description="how many of the lowest-success cells to derive manifests from")
@@ -112,8 +112,9 @@ class LoopParams(FlowParams):
 
     @model_validator(mode="after")
     def _behaviour_cloning(self):
-        if self.policy is not None and not self.policy.startswith("bc:"):
-            raise Refused(f"policy {self.policy!r}: the loop post-trains behaviour-cloning policies (bc:PATH or bc:ID)")
+        if self.policy is not None and not self.policy.startswith(("bc:", "vision:")):
+            raise Refused(f"policy {self.policy!r}: the loop post-trains learned policies (bc:PATH, bc:ID, vision:PATH "
+                          "or vision:ID)")
         return self
 
     def check_scenario(self, scenario) -> None:

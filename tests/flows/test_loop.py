@@ -84,7 +84,28 @@ def test_cli_refuses_before_any_work(data_root, tmp_path):
     result = CliRunner().invoke(app, ["loop", str(_manifest(tmp_path)), "--policy", "bc:/nowhere"])
     assert result.exit_code == 2 and "not a behaviour-cloning checkpoint" in result.output
     result = CliRunner().invoke(app, ["loop", str(_manifest(tmp_path)), "--policy", "scripted"])
-    assert result.exit_code == 2 and "the loop post-trains behaviour-cloning policies" in result.output
+    assert result.exit_code == 2 and "the loop post-trains learned policies" in result.output
     result = CliRunner().invoke(app, ["loop", str(_manifest(tmp_path)), "--policy", "bc:0123456789abcdef"])
     assert result.exit_code == 2 and "no lineage warehouse yet" in result.output
     assert not (data_root / "lineage.duckdb").exists()
+
+
+def test_the_loop_post_trains_a_vision_policy_on_what_its_cameras_saw(prefect_harness, data_root, tmp_path):
+    from tasks.policy import vision, vision_train
+    from tasks.policy.vision_obs import ObservationSpec
+
+    manifest, grid = _manifest(tmp_path), tmp_path / "grid.yaml"
+    grid.write_text(GRID)
+    scenario, spec = load(manifest), ObservationSpec(cameras=("overhead",), image_size=32)
+    model, _ = vision_train.train_vision(vision.collect(scenario, [5], spec), spec, TrainConfig(steps=4, batch_size=16))
+    vision_train.save_checkpoint(model, spec, tmp_path / "eyes", scenario, TrainConfig(steps=4))
+    result = loop(str(manifest), f"vision:{tmp_path / 'eyes'}", str(grid), worst=1, new_episodes=2, post_steps=4)
+
+    new = vision.VisionPolicy.from_checkpoint(result["checkpoint"])
+    assert new.spec == spec and new.meta["posttrained_from"] == result["old_checkpoint_id"]
+    assert new.meta["demonstrations"] > 0 and "/vision-policy/" in result["checkpoint"]
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, rows = wh.query("SELECT attrs->>'model' FROM artifacts WHERE artifact_id = $c", {"c": result["checkpoint_id"]})
+        _, edges = wh.query("SELECT DISTINCT relation FROM edges WHERE child_id = $c ORDER BY 1",
+                            {"c": result["checkpoint_id"]})
+    assert rows == [("vision-policy",)] and edges == [("posttrained_from",), ("trained_on",)]

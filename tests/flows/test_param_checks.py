@@ -55,9 +55,11 @@ CHECKS = [
     (train, {"manifest": PUSH, "preset_name": "huge"}, ["train", PUSH, "--preset", "huge"],
      "unknown world model preset 'huge'"),
     (train_policy, {"manifest": PUSH, "preset_name": "huge"}, ["train-policy", PUSH, "--preset", "huge"],
-     "unknown policy preset 'huge'"),
+     "unknown state policy preset 'huge'"),
+    (train_policy, {"manifest": PUSH, "observe": "overhead,overhead"}, ["train-policy", PUSH, "--observe", "overhead,overhead"],
+     "observe 'overhead,overhead': name one or more distinct cameras"),
     (loop, {"manifest": PUSH, "policy": "scripted"}, ["loop", PUSH, "--policy", "scripted"],
-     "policy 'scripted': the loop post-trains behaviour-cloning policies"),
+     "policy 'scripted': the loop post-trains learned policies"),
     (simulate, {"manifest": PUSH, "episodes": 0}, ["simulate", PUSH, "--episodes", "0"],
      ("'--episodes': Input should be greater than or equal to 1",
       "episodes: Input should be greater than or equal to 1")),
@@ -141,3 +143,11 @@ def test_cuda_without_a_gpu_is_refused_in_one_line(flow, params, argv):
     assert done.exit_code == 2 and "no CUDA GPU is visible to PyTorch" in done.output, done.output
     with pytest.raises(ParamsError, match="device: no CUDA GPU is visible"):
         flow.fn(**params)
+
+
+def test_a_vision_policy_on_a_camera_the_manifest_lacks_is_refused_before_anything_runs(data_root):
+    result = runner.invoke(app, ["train-policy", PUSH, "--observe", "wrist"], terminal_width=400)
+    assert result.exit_code == 2, result.output
+    assert ("--observe: the policy observes camera(s) wrist, which conveyor-push does not have (it has overhead)"
+            in " ".join(result.output.split()))
+    assert not (data_root / "lineage.duckdb").exists()
