@@ -12,7 +12,7 @@ simulator over every episode rendered, policy inference frames per second and tr
 per second on one thread.
 
     .venv/bin/python bench/vision_panels.py [--families push,pick] [--episodes 20] [--per-cell 10]
-        [--steps 3000] [--dagger 2]
+        [--steps 3000] [--dagger 0]
 """
 
 from __future__ import annotations
@@ -149,7 +149,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=20, help="nominal demonstrations per family")
     parser.add_argument("--per-cell", type=int, default=10, help="panel seeds per cell")
     parser.add_argument("--steps", type=int, default=3000)
-    parser.add_argument("--dagger", type=int, default=2)
+    parser.add_argument("--dagger", type=int, default=0, help="DAgger rounds after behaviour cloning")
     args = parser.parse_args()
     started = time.perf_counter()
     print(f"# vision_panels ({time.strftime('%Y-%m-%d')})")

@@ -59,8 +59,9 @@ class TrainPolicyParams(FlowParams):
     observe: str | None = Field(None, description="cameras a vision policy sees, comma-separated, e.g. side or "
                                 "front_left,wrist (default: a state policy reading the simulator)")
     image_size: Side = Field(64, description="a vision policy's frames, downscaled to this square size")
-    dagger: Annotated[int, Field(ge=0, le=20)] = Field(2, description="DAgger rounds of a vision policy: the "
-                                                                     "learner drives, the scripted expert labels")
+    dagger: Annotated[int, Field(ge=0, le=20)] = Field(0, description="DAgger rounds of a vision policy: the "
+                                                                     "learner drives, the scripted expert labels "
+                                                                     "(measured to hurt so far: docs/evaluation.md)")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest",)
     cli_names = {"preset_name": "--preset"}

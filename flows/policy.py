@@ -64,7 +64,7 @@ def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], conf
 
 @flow(name="train-policy", log_prints=True)
 def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, preset_name: str = "tiny", seed: Seed = 0,
-                 holdout: Holdout = 10, observe: str | None = None, image_size: Side = 64, dagger: int = 2) -> dict:
+                 holdout: Holdout = 10, observe: str | None = None, image_size: Side = 64, dagger: int = 0) -> dict:
     """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations;
     with ``observe``, a vision policy on those cameras, then ``dagger`` DAgger rounds."""
     checks = TrainPolicyParams.of(locals())  # every parameter check, for a deployment as for the CLI
