@@ -51,13 +51,16 @@ def wilson(k: int, n: int) -> tuple[float, float]:
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def panel(parent, per_cell: int):
-    base = default_grid(parent)
-    cells = {c.name: c for c in base.cells}
+def bench_grid(parent, per_cell: int) -> StressorGrid:
+    """The default grid's cells in ORDER, plus a strong appearance change, on panel seeds."""
+    cells = {c.name: c for c in default_grid(parent).cells}
     cells["appearance"] = StressorCell(name="appearance", stressors=(Appearance(colour_jitter=0.9, texture=True),))
-    grid = StressorGrid(name="vision-bench", description="nominal, then one stressor at a time",
+    return StressorGrid(name="vision-bench", description="nominal, then one stressor at a time",
                         cells=tuple(cells[name] for name in ORDER), episodes=per_cell, seed=parent.seed + PANEL)
-    return expand(parent, grid)
+
+
+def panel(parent, per_cell: int):
+    return expand(parent, bench_grid(parent, per_cell))
 
 
 def train_both(parent, cameras, episodes: int, steps: int, rounds: int) -> tuple[dict, dict]:

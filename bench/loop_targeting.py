@@ -1,0 +1,134 @@
+"""The loop against its controls (issue 28, point 3): does targeting the failed cells beat
+spending the same budget of new demonstrations elsewhere?
+
+From one starting vision policy (behaviour cloning on nominal demonstrations of the manifest),
+three arms each get the same number of new scripted demonstrations, seen through the policy's
+own cameras, and post-train the starting policy on them (``tasks/policy/posttrain.py``, the
+loop's own step):
+- **targeted**: the loop: manifests derived from the ``--worst`` lowest cells of the starting
+  policy's panel, the budget shared by failure rate (``tasks/loop.py``);
+- **nominal**: the budget on the manifest as it is;
+- **uniform**: the budget spread evenly over every cell of the panel.
+Each arm runs ``--repeats`` times with independent demonstration and training seeds. Every
+policy is evaluated on the same held-out panel seeds (which no demonstration used). It prints,
+per cell, success before and after for each arm (pooled over repeats) with a bootstrap 95%
+interval over episodes, the gain on the cells that failed against the better control, and
+the wall time.
+
+    .venv/bin/python bench/loop_targeting.py [--family push] [--start-episodes 20] [--steps 1500]
+        [--budget 12] [--worst 2] [--repeats 3] [--per-cell 8] [--post-steps 1000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.vision_panels import FAMILIES, ORDER, bench_grid, panel  # noqa: E402
+from tasks import loop as steps  # noqa: E402
+from tasks import manifests  # noqa: E402
+from tasks.policy import bc, posttrain, vision, vision_train  # noqa: E402
+from tasks.policy.evaluate import run_episode  # noqa: E402
+from tasks.policy.vision_obs import ObservationSpec  # noqa: E402
+
+REPO = Path(__file__).resolve().parents[1]
+TRAIN, PANEL, NEW = 1000, 10300, 20000  # seed offsets: start demonstrations, panel, each arm's new demonstrations
+
+
+def evaluate(spec, variants, policy) -> dict[str, list[bool]]:
+    out: dict[str, list[bool]] = {}
+    for pv, variant in zip(spec.variants, variants):
+        out[pv.cell] = [run_episode(variant, pv.cell, seed, policy, None).outcome.success for seed in pv.seeds]
+    return out
+
+
+def bootstrap(values: list[bool], rng: np.random.Generator, n: int = 2000) -> tuple[float, float]:
+    x = np.asarray(values, float)
+    means = x[rng.integers(0, len(x), (n, len(x)))].mean(1)
+    return float(np.quantile(means, 0.025)), float(np.quantile(means, 0.975))
+
+
+def arm_manifests(arm: str, parent, grid, before: dict[str, list[bool]], budget: int, worst: int, offset: int):
+    """(manifests, counts) of one arm's new demonstrations, on seeds parent.seed + offset.."""
+    if arm == "nominal":
+        return steps.derive_manifests(parent, grid, ["nominal"], offset), [budget]
+    if arm == "uniform":
+        cells = list(ORDER)
+        counts = [budget // len(cells) + (1 if i < budget % len(cells) else 0) for i in range(len(cells))]
+        picked = [(c, n) for c, n in zip(cells, counts) if n]
+        return steps.derive_manifests(parent, grid, [c for c, _ in picked], offset), [n for _, n in picked]
+    table = [{"cell": c, "sim": float(np.mean(v))} for c, v in before.items()]
+    chosen = steps.worst_cells(table, worst)
+    return (steps.derive_manifests(parent, grid, [c for c, _ in chosen], offset),
+            steps.episode_counts([r for _, r in chosen], budget))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--family", default="push", choices=sorted(FAMILIES))
+    parser.add_argument("--start-episodes", type=int, default=20)
+    parser.add_argument("--steps", type=int, default=1500)
+    parser.add_argument("--budget", type=int, default=12, help="new demonstrations per arm")
+    parser.add_argument("--worst", type=int, default=2)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--per-cell", type=int, default=8)
+    parser.add_argument("--post-steps", type=int, default=1000)
+    args = parser.parse_args()
+    started = time.perf_counter()
+    path, cameras = FAMILIES[args.family]
+    parent = manifests.load(REPO / path)
+    spec_obs = ObservationSpec(cameras=cameras, image_size=64)
+    seeds = list(range(parent.seed + TRAIN, parent.seed + TRAIN + args.start_episodes))
+    demos = vision.collect(parent, seeds, spec_obs)
+    model, _ = vision_train.train_vision(demos, spec_obs, bc.TrainConfig(steps=args.steps, batch_size=64))
+    start = vision.VisionPolicy(model, spec_obs, {"manifest_hash": parent.sha256, "train_seeds": seeds})
+    spec, variants = panel(parent, args.per_cell)
+    grid = bench_grid(parent, args.per_cell)
+    before = evaluate(spec, variants, start)
+    print(f"# loop_targeting ({time.strftime('%Y-%m-%d')}): {parent.name}, vision policy on {', '.join(cameras)}; "
+          f"start: {args.start_episodes} demonstrations, {args.steps} steps; budget {args.budget} per arm, "
+          f"{args.repeats} repeats, post-training {args.post_steps} steps; {args.per_cell} panel seeds per cell")
+    after: dict[str, dict[str, list[bool]]] = {arm: {c: [] for c in ORDER} for arm in ("targeted", "nominal", "uniform")}
+    targeted_cells: list[str] = []
+    scratch = tempfile.mkdtemp(prefix="loop_targeting_")
+    for r in range(args.repeats):
+        for k, arm in enumerate(after):
+            made, counts = arm_manifests(arm, parent, grid, before, args.budget, args.worst, NEW + 1000 * (3 * r + k))
+            if arm == "targeted":
+                targeted_cells = [m.name.rsplit("--", 1)[1] for m in made]
+            new = posttrain.demonstrations(parent, start, made, counts, note=lambda line: print(f"  {line}"))
+            folder = Path(scratch) / f"{arm}_{r}"
+            posttrain.post_train(start, new, bc.TrainConfig(steps=args.post_steps, batch_size=64, seed=r), folder,
+                                 parent, {})
+            for cell, outcomes in evaluate(spec, variants, vision.VisionPolicy.from_checkpoint(folder)).items():
+                after[arm][cell] += outcomes
+            print(f"  repeat {r}, {arm}: {sum(counts)} new demonstrations in {', '.join(m.name for m in made)}", flush=True)
+    shutil.rmtree(scratch, ignore_errors=True)
+    rng = np.random.default_rng(0)
+    print("\n| cell | before | targeted | nominal | uniform |\n|---|---|---|---|---|")
+    for cell in ORDER:
+        row = [cell + (" (targeted)" if cell in targeted_cells else "")]
+        for values in (before[cell], *(after[arm][cell] for arm in after)):
+            lo, hi = bootstrap(values, rng)
+            row.append(f"{np.mean(values):.2f} [{lo:.2f}, {hi:.2f}]")
+        print("| " + " | ".join(row) + " |")
+    failed = [c for c in ORDER if np.mean(before[c]) < 0.9]
+    if failed:
+        gains = {arm: np.mean(sum((after[arm][c] for c in failed), [])) - np.mean(sum((before[c] for c in failed), []))
+                 for arm in after}
+        print(f"\ncells that failed (before < 0.9): {', '.join(failed)}; gain there: "
+              + ", ".join(f"{arm} {g:+.2f}" for arm, g in gains.items())
+              + f"; targeted minus the better control {gains['targeted'] - max(gains['nominal'], gains['uniform']):+.2f}")
+    print(f"bench wall time {time.perf_counter() - started:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
