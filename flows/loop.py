@@ -126,7 +126,7 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
         counts = steps.episode_counts([rate for _, rate in picked], new_episodes)
         derived = steps.derive_manifests(parent, chosen, [cell for cell, _ in picked])
         files = write_derived(derived, root)
-        run.write(steps.derived_lineage(run.manifest_hash, derived, files, picked, counts))
+        run.write(steps.derived_lineage(run.manifest_hash, derived, files, picked, counts, before["evaluation_id"]))
 
         made = [generate(m, path, n, root) for m, path, n in zip(derived, files, counts)]
         checkpoint_id, folder = post_train_policy(run, parent, old, old_id, derived, counts, post_steps, root)

@@ -82,13 +82,17 @@ def before_after(before: Sequence[dict], after: Sequence[dict], targeted: Sequen
 
 
 def derived_lineage(parent_hash: str, derived: Sequence[ScenarioManifest], files: Sequence[Path],
-                    picked: Sequence[tuple[str, float]], counts: Sequence[int]) -> LineageBatch:
-    """Each derived manifest, a 'derived_from_failure' edge from the parent, and the success
-    rate of the cell it came from."""
+                    picked: Sequence[tuple[str, float]], counts: Sequence[int],
+                    evaluation_id: str | None = None) -> LineageBatch:
+    """Each derived manifest, 'derived_from_failure' edges from the parent and from the
+    evaluation whose failed cells it came from (so `audit failure` on that evaluation finds
+    it, and what was made from it), and the success rate of the cell it came from."""
     batch = LineageBatch()
     for m, path, (cell, rate), n in zip(derived, files, picked, counts):
         batch.extend(manifests.lineage(m, str(path)))
         batch.edges.append(EdgeRecord(parent_id=parent_hash, child_id=m.sha256, relation=RELATION_DERIVED))
+        if evaluation_id is not None:
+            batch.edges.append(EdgeRecord(parent_id=evaluation_id, child_id=m.sha256, relation=RELATION_DERIVED))
         batch.metrics.append(MetricRecord(subject_id=m.sha256, name="loop_source_success_rate", value=rate,
                                           manifest_hash=parent_hash, attrs={"cell": cell, "new_episodes": n}))
     return batch

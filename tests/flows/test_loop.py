@@ -1,6 +1,7 @@
 """The loop flow: worst cells -> derived manifests -> episodes, shards -> post-trained policy
 -> the same panel again, all in lineage."""
 
+import json
 from pathlib import Path
 
 from typer.testing import CliRunner
@@ -109,3 +110,18 @@ def test_the_loop_post_trains_a_vision_policy_on_what_its_cameras_saw(prefect_ha
         _, edges = wh.query("SELECT DISTINCT relation FROM edges WHERE child_id = $c ORDER BY 1",
                             {"c": result["checkpoint_id"]})
     assert rows == [("vision-policy",)] and edges == [("posttrained_from",), ("trained_on",)]
+
+    # Issue 28, point 4: the failure audit names the failed cells, what was derived from them,
+    # the demonstrations simulated there, the post-trained policy and its evaluation.
+    audit = CliRunner().invoke(app, ["audit", "failure", "--artifact", result["before_evaluation_id"], "--format", "json"])
+    assert audit.exit_code == 0, audit.output
+    found = json.loads(audit.output)
+    by_kind = {}
+    for row in found:
+        by_kind.setdefault(row["kind"], set()).add(row["id"])
+    (derived,) = result["derived"]
+    assert by_kind["then_manifest"] == {derived["manifest_hash"]}
+    assert len(by_kind["then_episode"]) == derived["episodes"]
+    assert by_kind["then_checkpoint"] == {result["checkpoint_id"]}, [r for r in found if r["kind"] == "then_checkpoint"]
+    assert by_kind["then_evaluation"] == {result["after_evaluation_id"]}
+    assert "checkpoint" in by_kind and result["old_checkpoint_id"] in by_kind["checkpoint"]
