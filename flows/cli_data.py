@@ -62,9 +62,12 @@ def demo() -> None:
     writing()
     result = demo_flow()
     summary("table")
-    cols = ["cell", "episodes", "before", "after", "targeted"]
-    print_rows(cols, [tuple(r[c] for c in cols) for r in result["loop"]["table"]], "table",
-               title="the loop: simulator success per stressor cell before and after post-training")
+    rate = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    print_rows(["cell", "episodes", "before", "targeted", "untargeted", "new data"],
+               [(r["cell"], r["episodes"], rate(r["before"]), rate(r["after"]), rate(r.get("untargeted")),
+                 "yes" if r["targeted"] else "") for r in result["loop"]["table"]], "table",
+               title="the loop for a vision policy: success per stressor cell before, and after post-training on "
+                     "new episodes of its worst cells (targeted) or as many of the manifest as it is (untargeted)")
     # What lies behind a failed evaluation (the world-model one: through the world model's
     # checkpoints to its token shards, clips, raw videos and manifests).
     audit("failure", manifest=None, artifact=result["audit_evaluation"], fmt="table")

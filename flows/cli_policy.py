@@ -98,8 +98,10 @@ def loop_cmd(params: LoopParams, fmt: str = "table") -> None:
 
     writing()
     result = loop_flow(**params.model_copy(update={"policy": policy}).model_dump())
-    fmt = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
-    print_rows(["cell", "episodes", "before", "after", "targeted"],
-               [(r["cell"], r["episodes"], fmt(r["before"]), fmt(r["after"]), "yes" if r["targeted"] else "")
+    rate = lambda v: "-" if v is None else f"{v:.2f}"  # noqa: E731
+    control = bool(result["table"]) and "untargeted" in result["table"][0]
+    print_rows(["cell", "episodes", "before", "after", *(["untargeted control"] if control else []), "targeted"],
+               [(r["cell"], r["episodes"], rate(r["before"]), rate(r["after"]),
+                 *([rate(r["untargeted"])] if control else []), "yes" if r["targeted"] else "")
                 for r in result["table"]], fmt, title="success rate per stressor cell, before and after")
     (out if fmt == "table" else err).print(f"checkpoint {result['checkpoint']}", highlight=False)

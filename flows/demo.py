@@ -11,6 +11,7 @@ from flows.curate import curate
 from flows.evaluate import evaluate
 from flows.loop import loop
 from flows.physics import evaluate_physics
+from flows.policy import train_policy
 from flows.register import register
 from flows.report import markdown_table, publish
 from flows.simulate import simulate
@@ -31,7 +32,7 @@ def demo() -> dict:
     tokenizer on the push episodes' shards and a tiny world model on its tokens and the
     episodes' actions, check it against the simulator, evaluate two policies on a matched
     panel, generate a labelled minute of raw footage (simulator and procedural, with defects)
-    and curate it, and close the loop once for a weak behaviour-cloning policy."""
+    and curate it, and close the loop once for a weak vision policy, beside an untargeted control."""
     for path in sorted(MANIFESTS.glob("*.yaml")):
         register(str(path))
     results = []
@@ -55,8 +56,12 @@ def demo() -> dict:
     evaluated = evaluate(PUSH, episodes=1, world_model=world_model)
     footage = corpus(minutes=1.0, seed=1, width=640, height=360)
     results.append(curate(footage["videos"]))
-    # One turn of the loop: a weak policy's worst cells become new data and post-training.
-    closed = loop(PUSH, episodes=2, worst=2)
+    # One turn of the loop for a weak policy that sees (the overhead camera at 32 px, three
+    # demonstrations): its worst cells become new data and post-training, beside an untargeted
+    # control that spends the same budget on the manifest as it is.
+    seeing = train_policy(PUSH, episodes=3, steps=300, observe="overhead", image_size=32, holdout=0)
+    closed = loop(PUSH, policy=f"vision:{seeing['folder']}", episodes=2, worst=2, new_episodes=6, post_steps=300,
+                  control=True)
     publish("demo", f"{len(results)} curate runs, one loop", markdown_table(
         ("curate run", "manifest", "status", "inputs", "clips kept", "shards"),
         [(r["run_id"], (r["manifest_hash"] or "")[:12], r["status"], r["inputs"], r["clips"], len(r["shards"]))

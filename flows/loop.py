@@ -24,7 +24,7 @@ from flows.simulate import simulate
 from schemas import paths
 from schemas.hashing import content_hash, stable_id
 from schemas.manifest import ScenarioManifest
-from schemas.records import LineageBatch, MetricRecord
+from schemas.records import EdgeRecord, LineageBatch, MetricRecord
 from schemas.settings import Settings
 from tasks import loop as steps
 from tasks import manifests
@@ -91,6 +91,19 @@ def post_train_policy(run: RunContext, parent: ScenarioManifest, old: posttrain.
     return checkpoint_id, folder
 
 
+def untargeted_control(run: RunContext, parent: ScenarioManifest, grid, old: posttrain.Learned, old_id: str,
+                       budget: int, post_steps: int, root: Path) -> tuple[str, Path]:
+    """The control arm: the old policy post-trained on ``budget`` new episodes of the parent
+    as it is (its own derived manifest, an 'untargeted_control' edge from the parent)."""
+    nominal = steps.control_manifest(parent, grid)
+    (path,) = write_derived([nominal], root)
+    batch = manifests.lineage(nominal, str(path))
+    batch.edges.append(EdgeRecord(parent_id=run.manifest_hash, child_id=nominal.sha256, relation=steps.RELATION_CONTROL))
+    run.write(batch)
+    generate(nominal, path, budget, root)
+    return post_train_policy(run, parent, old, old_id, [nominal], [budget], post_steps, root)
+
+
 def summarise(table: list[dict], derived: list[ScenarioManifest], counts: list[int], picked: list[tuple[str, float]],
               title: str) -> str:
     """The `loop-summary` artifact: success per cell before and after, and the derived manifests."""
@@ -101,10 +114,12 @@ def summarise(table: list[dict], derived: list[ScenarioManifest], counts: list[i
 
 @flow(name="loop", log_prints=True)
 def loop(manifest: str, policy: str | None = None, grid: str | None = None, episodes: PanelEpisodes | None = None,
-         worst: Worst = 1, new_episodes: Episodes = 12, post_steps: Steps = 2000) -> dict:
+         worst: Worst = 1, new_episodes: Episodes = 12, post_steps: Steps = 2000, control: bool = False) -> dict:
     """Close the loop once for ``policy`` (``bc:PATH`` or ``vision:PATH``; default: a weak state policy trained here on
     a few demonstrations) on the panel of ``manifest`` over ``grid``: the ``worst`` cells get
-    ``new_episodes`` in all, in proportion to their failure rate."""
+    ``new_episodes`` in all, in proportion to their failure rate. With ``control``, the same
+    policy is also post-trained on as many new episodes of the manifest as it is (untargeted)
+    and evaluated on the same panel, beside the targeted one."""
     checks = LoopParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
@@ -112,7 +127,7 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
     checks.check_scenario(parent)
     chosen = resolve_grid(parent, grid, episodes)
     params = {"manifest": manifest, "policy": policy, "grid": grid, "episodes": episodes, "worst": worst,
-              "new_episodes": new_episodes, "post_steps": post_steps}
+              "new_episodes": new_episodes, "post_steps": post_steps, "control": control}
     with recorded_run("loop", settings, parent, source_uri=manifest, params=params) as run:
         if policy is None:
             policy = "bc:" + train_policy(manifest, episodes=FRESH_DEMOS, steps=FRESH_STEPS, holdout=0)["folder"]
@@ -132,7 +147,11 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
         checkpoint_id, folder = post_train_policy(run, parent, old, old_id, derived, counts, post_steps, root)
 
         after = evaluate(manifest, grid, episodes, [f"{kind}:{folder}"], detector=False)["evaluations"][0]
-        table = steps.before_after(before["table"], after["table"], [cell for cell, _ in picked])
+        untargeted = untargeted_control(run, parent, chosen, old, old_id, sum(counts), post_steps, root) if control else None
+        versus = evaluate(manifest, grid, episodes, [f"{kind}:{untargeted[1]}"], detector=False)["evaluations"][0] \
+            if untargeted else None
+        table = steps.before_after(before["table"], after["table"], [cell for cell, _ in picked],
+                                   versus["table"] if versus else None)
         run.write(LineageBatch(metrics=[MetricRecord(
             subject_id=checkpoint_id, name="loop_success_rate" + ("" if r["cell"] == "all" else f"/{r['cell']}"),
             value=r["after"], manifest_hash=run.manifest_hash,
@@ -146,4 +165,6 @@ def loop(manifest: str, policy: str | None = None, grid: str | None = None, epis
                                             for d, p, (c, rate), n in zip((m.sha256 for m in derived), files, picked,
                                                                           counts)],
                 "shards": [u for g in made for u in g["shards"]], "old_checkpoint_id": old_id, "checkpoint_id": checkpoint_id,
-                "checkpoint": str(folder), "simulated": made}
+                "checkpoint": str(folder), "simulated": made,
+                "control": None if not versus else {"checkpoint_id": untargeted[0], "checkpoint": str(untargeted[1]),
+                                                    "evaluation_id": versus["evaluation_id"]}}

@@ -108,6 +108,8 @@ class LoopParams(FlowParams):
     worst: Worst = Field(1, description="how many of the lowest-success cells to derive manifests from")
     new_episodes: Episodes = Field(12, description="new episodes in all, weighted by failure rate")
     post_steps: Steps = Field(2000, description="post-training steps")
+    control: bool = Field(False, description="also post-train on as many new episodes of the manifest as it is "
+                                            "(an untargeted control) and compare it on the same panel")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest", "grid")
 

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from schemas.manifest import ScenarioManifest
-from schemas.panel import StressorGrid
+from schemas.panel import StressorCell, StressorGrid
 from schemas.records import EdgeRecord, LineageBatch, MetricRecord
 from tasks import manifests
 from tasks.panels.grid import variant_manifest
@@ -22,6 +22,8 @@ from tasks.tables import markdown_table
 # New data must not replay the panel's seeds (seed, seed+1, ...), the demonstrations of
 # train-policy (seed+1000..) or its held-out check (seed+2000..).
 SEED_OFFSET = 3000
+CONTROL_SEED_OFFSET = 4000  # the untargeted control's new episodes: seeds no other arm uses
+RELATION_CONTROL = "untargeted_control"
 RELATION_DERIVED = "derived_from_failure"
 RELATION_POSTTRAINED = "posttrained_from"
 
@@ -73,12 +75,28 @@ def merge(parts: Sequence[Demonstrations]) -> Demonstrations:
                           successes=tuple(s for p in parts for s in p.successes))
 
 
-def before_after(before: Sequence[dict], after: Sequence[dict], targeted: Sequence[str]) -> list[dict]:
+def control_manifest(parent: ScenarioManifest, grid: StressorGrid) -> ScenarioManifest:
+    """The untargeted control's manifest: the parent as it is (the nominal cell), on fresh
+    seeds (parent.seed + CONTROL_SEED_OFFSET ..), so it spends the same budget of new
+    demonstrations without looking at where the policy failed."""
+    nominal = StressorCell(name="nominal")
+    control_grid = StressorGrid.model_validate({**grid.model_dump(mode="json"), "name": "control",
+                                                "cells": [nominal.model_dump(mode="json")],
+                                                "seed": parent.seed + CONTROL_SEED_OFFSET,
+                                                "description": f"untargeted control for {grid.name}"})
+    return variant_manifest(parent, control_grid, nominal)
+
+
+def before_after(before: Sequence[dict], after: Sequence[dict], targeted: Sequence[str],
+                 control: Sequence[dict] | None = None) -> list[dict]:
     """Rows of two evaluations' tables on the same panel: cell, episodes, simulator success
-    before and after, and whether the loop made new data for the cell."""
+    before and after, whether the loop made new data for the cell, and with ``control`` the
+    untargeted control's success after ("untargeted")."""
     rates = {r["cell"]: r["sim"] for r in after}
+    other = {r["cell"]: r["sim"] for r in control or []}
     return [{"cell": r["cell"], "episodes": r["episodes"], "before": r["sim"], "after": rates.get(r["cell"]),
-             "targeted": r["cell"] in targeted} for r in before]
+             "targeted": r["cell"] in targeted, **({"untargeted": other.get(r["cell"])} if control else {})}
+            for r in before]
 
 
 def derived_lineage(parent_hash: str, derived: Sequence[ScenarioManifest], files: Sequence[Path],
@@ -105,9 +123,14 @@ def _fmt(value: float | None) -> str:
 def summary_text(table: list[dict], derived: Sequence[ScenarioManifest], counts: Sequence[int],
                  picked: Sequence[tuple[str, float]]) -> tuple[str, str]:
     """(table of success per cell before and after, list of the derived manifests) in markdown."""
-    text = markdown_table(("cell", "episodes", "before", "after", "targeted"),
-                          [(r["cell"], r["episodes"], _fmt(r["before"]), _fmt(r["after"]), "yes" if r["targeted"] else "")
-                           for r in table])
+    if table and "untargeted" in table[0]:
+        text = markdown_table(("cell", "episodes", "before", "after (targeted)", "after (untargeted control)", "targeted"),
+                              [(r["cell"], r["episodes"], _fmt(r["before"]), _fmt(r["after"]), _fmt(r["untargeted"]),
+                                "yes" if r["targeted"] else "") for r in table])
+    else:
+        text = markdown_table(("cell", "episodes", "before", "after", "targeted"),
+                              [(r["cell"], r["episodes"], _fmt(r["before"]), _fmt(r["after"]),
+                                "yes" if r["targeted"] else "") for r in table])
     made = "\n".join(f"- {m.name} ({m.sha256[:12]}): {n} new episodes, from cell {cell} at {_fmt(rate)}"
                      for m, n, (cell, rate) in zip(derived, counts, picked))
     return text, made

@@ -100,7 +100,13 @@ def test_the_loop_post_trains_a_vision_policy_on_what_its_cameras_saw(prefect_ha
     scenario, spec = load(manifest), ObservationSpec(cameras=("overhead",), image_size=32)
     model, _ = vision_train.train_vision(vision.collect(scenario, [5], spec), spec, TrainConfig(steps=4, batch_size=16))
     vision_train.save_checkpoint(model, spec, tmp_path / "eyes", scenario, TrainConfig(steps=4))
-    result = loop(str(manifest), f"vision:{tmp_path / 'eyes'}", str(grid), worst=1, new_episodes=2, post_steps=4)
+    result = loop(str(manifest), f"vision:{tmp_path / 'eyes'}", str(grid), worst=1, new_episodes=2, post_steps=4,
+                  control=True)
+    # The untargeted control: the same budget on the manifest as it is, evaluated beside it.
+    assert all("untargeted" in r for r in result["table"]) and result["control"]["checkpoint_id"] != result["checkpoint_id"]
+    control = vision.VisionPolicy.from_checkpoint(result["control"]["checkpoint"])
+    assert control.meta["posttrained_from"] == result["old_checkpoint_id"]
+    assert [len(v) for v in control.meta["derived_seeds"].values()] == [2]
 
     new = vision.VisionPolicy.from_checkpoint(result["checkpoint"])
     assert new.spec == spec and new.meta["posttrained_from"] == result["old_checkpoint_id"]
