@@ -1,6 +1,7 @@
 """Rate-distortion of the video tokenizers against H.264 on held-out simulator clips.
 
     .venv/bin/python bench/tokenizer.py [--budget-min 30] [--variants small-dv4x8x8,small-cv4x8x8]
+        [--device auto|cpu|cuda] [--compile] [--precision bf16] [--tf32]
 
 Renders a manifest's episodes (--manifest, default ``mobile_rig_aisle``; every camera) with MuJoCo (training seeds manifest.seed + i, held-out
 seeds 1000 + i), downscales them to --size, trains each variant for --budget-min minutes of
@@ -31,6 +32,7 @@ import torch.nn.functional as F
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from models.tokenizer import VideoTokenizer, preset  # noqa: E402
+from tasks.device import Runtime  # noqa: E402
 from tasks.tokenize.train import TrainConfig, to_tensor, train_tokenizer  # noqa: E402
 
 MANIFEST = Path(__file__).resolve().parents[1] / "manifests" / "mobile_rig_aisle.yaml"
@@ -201,11 +203,11 @@ def run_variant(name: str, train: list[np.ndarray], heldout: np.ndarray, args) -
             next_eval += every
 
     print(f"[{name}] {params / 1e6:.2f}M parameters, budget {args.budget_min} min", flush=True)
-    history = train_tokenizer(model, train, tc, on_log)
+    history = train_tokenizer(model, train, tc, on_log, args.runtime)
     out = args.out / name
     out.mkdir(parents=True, exist_ok=True)
     from safetensors.torch import save_file
-    save_file(model.state_dict(), str(out / "model.safetensors"))
+    save_file({k: v.detach().cpu() for k, v in model.state_dict().items()}, str(out / "model.safetensors"))
     (out / "config.json").write_text(config.model_dump_json(indent=2))
     recon = roundtrip(model, heldout)
     final = psnr_u8(heldout, recon)
@@ -234,7 +236,14 @@ def main() -> None:
     ap.add_argument("--curve-points", type=int, default=6)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("bench/out/tokenizer"))
+    ap.add_argument("--device", default="cpu", help="where the tokenizers train and run: auto, cpu, cuda (tasks.device)")
+    ap.add_argument("--compile", action="store_true", help="torch.compile(mode='reduce-overhead') for training")
+    ap.add_argument("--precision", default="fp32", choices=["fp32", "bf16"])
+    ap.add_argument("--tf32", action="store_true", help="allow TF32 matmuls and convolutions on a GPU")
     args = ap.parse_args()
+    args.runtime = Runtime(device=args.device, precision=args.precision, compile=args.compile, tf32=args.tf32)
+    device = args.runtime.torch_device()
+    where = torch.cuda.get_device_name(device) if device.type == "cuda" else f"CPU, {args.threads} threads"
     args.crop = args.crop or None
     if args.budget_min > 30:
         ap.error("--budget-min: the issue caps the bench's training at 30 minutes")
@@ -270,7 +279,8 @@ def main() -> None:
     print("\nHeld-out PSNR against training time (probe of 8 clips; last point: all clips)")
     for r in results:
         print(f"{r['variant']:<15} " + "  ".join(f"{s / 60:.1f}min/{n}st {p:.2f}dB" for s, n, p in r["curve"]))
-    print(f"\ntotal {time.perf_counter() - started:.0f}s with {args.threads} threads")
+    print(f"\ntotal {time.perf_counter() - started:.0f}s; trained on {where} ({args.runtime.precision}, "
+          f"compile {args.runtime.compile}, tf32 {args.runtime.tf32}); torch {torch.__version__}")
     (args.out / "results.json").write_text(json.dumps({"h264": curves, "tokenizers": results, "args": {
         k: str(v) for k, v in vars(args).items()}}, indent=2))
 

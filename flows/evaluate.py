@@ -64,7 +64,8 @@ def plan(manifest_paths: list[str], grid: str | None, episodes: int | None,
 
 
 def evaluate_one(run: RunContext, spec: PanelSpec, variants: list[ScenarioManifest], policy: Policy,
-                 camera: str | None, world_model: str | None, samples: int = 1) -> list[EpisodeOutcome]:
+                 camera: str | None, world_model: str | None, samples: int = 1,
+                 device: str | None = None) -> list[EpisodeOutcome]:
     """Every variant x seed of the panel under one policy; the world model judges each from
     ``samples`` rollouts (one greedy, or that many sampled: ``world_judgement``)."""
     futures = [(variant, pv.cell, seed, episode_task.submit(variant, pv.cell, seed, policy, camera))
@@ -75,7 +76,8 @@ def evaluate_one(run: RunContext, spec: PanelSpec, variants: list[ScenarioManife
             done: Rollout = future.result()
             outcome = done.outcome
             if world_model:
-                judged = world_judgement(world_model, variant, camera, done, run.settings.data_root, samples)
+                judged = world_judgement(world_model, variant, camera, done, run.settings.data_root, samples,
+                                         device=device)
                 outcome = EpisodeOutcome(**{**outcome.as_dict(), "world": judged.verdict, "world_reason": judged.reason,
                                             "world_sure": judged.sure})
             outcomes.append(outcome)
@@ -85,7 +87,7 @@ def evaluate_one(run: RunContext, spec: PanelSpec, variants: list[ScenarioManife
 
 def evaluate_policy(run: RunContext, panel: dict, spec: PanelSpec, variants: list[ScenarioManifest], policy: Policy,
                     camera: str | None, world_model: str | None, wm_sha: str | None,
-                    world_ids: list[str], samples: int = 1) -> tuple[str, dict]:
+                    world_ids: list[str], samples: int = 1, device: str | None = None) -> tuple[str, dict]:
     """(evaluation id, result body) of one policy on one panel; a finished one is read back."""
     root = run.settings.data_root
     key = stable_id(STAGE, panel["panel_id"], content_hash(policy.describe()), wm_sha or "",
@@ -97,7 +99,7 @@ def evaluate_policy(run: RunContext, panel: dict, spec: PanelSpec, variants: lis
     if stage.done:  # its table is read back, so it must be the file lineage recorded
         verified_artifact(run.warehouse, result_file, evaluation_id)
         return evaluation_id, json.loads(result_file.read_text())
-    outcomes = evaluate_one(run, spec, variants, policy, camera, world_model, samples)
+    outcomes = evaluate_one(run, spec, variants, policy, camera, world_model, samples, device)
     table = success_table(outcomes, [v.cell for v in spec.variants])
     body = {"format": "worldline-evaluation/1", "evaluation_id": evaluation_id, "panel_id": panel["panel_id"],
             "panel": spec.name, "contract_hash": spec.contract_hash, "policy": policy.describe(),
@@ -134,16 +136,17 @@ def world_checkpoints(run: RunContext, world_model: str | None) -> list[str]:
 def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | None = None,
              policies: list[str] | None = None, compare: list[str] | None = None,
              world_model: str | None = None, detector: bool = True, guard: bool = True,
-             world_samples: WorldSamples = 1) -> dict:
+             world_samples: WorldSamples = 1, device: str | None = None) -> dict:
     """Evaluate ``policies`` (default: the scripted controller at the manifest's noise and at
     0.8) on the panel of ``manifest`` over ``grid``, and on the panels of the ``compare``
-    manifests over the same grid (their contracts must match)."""
+    manifests over the same grid (their contracts must match). ``device``: where the world
+    model rolls out (``tasks.device``; it changes no id)."""
     EvaluateParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root
     loaded = [load_policy(p) for p in (policies or DEFAULT_POLICIES)]
     planned = plan([manifest, *(compare or [])], grid, episodes, loaded)
-    made = {path: panels_flow(path, grid, episodes, world_model, None, guard) for path, *_ in planned}
+    made = {path: panels_flow(path, grid, episodes, world_model, None, guard, device) for path, *_ in planned}
     parent = planned[0][1]
     camera = primary_camera(parent, None) if detector or world_model else None
     wm_sha = content_hash({"checkpoint": str(Path(world_model).resolve())}) if world_model else None
@@ -159,7 +162,7 @@ def evaluate(manifest: str, grid: str | None = None, episodes: PanelEpisodes | N
         for path, _, spec, variants in planned:
             for policy in loaded:
                 evaluation_id, body = evaluate_policy(run, made[path], spec, variants, policy, camera, world_model,
-                                                      wm_sha, world_ids, world_samples)
+                                                      wm_sha, world_ids, world_samples, device)
                 results.append((spec.name, policy.name, evaluation_id, body["table"]))
                 episodes += body["episodes"]
         summary = compare_verdicts(run, results, episodes, root)

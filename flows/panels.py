@@ -79,9 +79,9 @@ def simulate_variants(run: RunContext, spec: PanelSpec, variants: list[ScenarioM
 
 @task(name="world-model-rollout", retries=0, cache_policy=NO_CACHE)
 def rollout_world_model(checkpoint: str, request: WorldModelRequest, guard: GuardConfig,
-                        root: Path) -> tuple[np.ndarray, list]:
+                        root: Path, device: str | None = None) -> tuple[np.ndarray, list]:
     """The world model's frames for one episode, with the face post-guard applied to them."""
-    generated = world_model_rollout(checkpoint, request, root)
+    generated = world_model_rollout(checkpoint, request, root, device=device)
     if not guard.enabled:
         return generated, []
     return guard_frames(np.ascontiguousarray(generated), guard)
@@ -89,7 +89,7 @@ def rollout_world_model(checkpoint: str, request: WorldModelRequest, guard: Guar
 
 def render_panel(run: RunContext, spec: PanelSpec, variants: list[ScenarioManifest], panel_id: str,
                  episodes_by_cell: dict, cam: str, fps: float, world_model: str | None,
-                 guard: GuardConfig | None) -> Path:
+                 guard: GuardConfig | None, device: str | None = None) -> Path:
     """panel.json, the contact sheet and the panel video (the world model's rollouts beside the
     simulator's, with the face guards unless ``guard`` is None), unless done before."""
     root = run.settings.data_root
@@ -107,7 +107,7 @@ def render_panel(run: RunContext, spec: PanelSpec, variants: list[ScenarioManife
         world = None
         if world_model:
             world, found = rollout_world_model(world_model, world_request(ep, variant, cam, fps, frames),
-                                               guard_config, root)
+                                               guard_config, root, device)
             subject = stable_id("world_rollout", panel_id, pv.cell, "0")
             if guard is not None:
                 world_batch.extend(face_decisions(subject, found, manifest_hash=pv.manifest_hash))
@@ -127,9 +127,11 @@ def render_panel(run: RunContext, spec: PanelSpec, variants: list[ScenarioManife
 
 @flow(name="panels", log_prints=True, task_runner=task_runner())
 def panels(manifest: str, grid: str | None = None, episodes: PanelEpisodes | None = None,
-           world_model: str | None = None, camera: str | None = None, guard: bool = True) -> dict:
+           world_model: str | None = None, camera: str | None = None, guard: bool = True,
+           device: str | None = None) -> dict:
     """A matched panel of ``manifest`` over ``grid`` (a YAML StressorGrid; default: one
-    stressor at a time), ``episodes`` seeds per cell (default: the grid's)."""
+    stressor at a time), ``episodes`` seeds per cell (default: the grid's). ``device``: where
+    the world model rolls out (``tasks.device``; it changes no id)."""
     PanelsParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root
@@ -158,7 +160,7 @@ def panels(manifest: str, grid: str | None = None, episodes: PanelEpisodes | Non
 
         episodes_by_cell = simulate_variants(run, spec, variants)
         spec_file = render_panel(run, spec, variants, panel_id, episodes_by_cell, cam, fps, world_model,
-                                 guard_config if guard else None)
+                                 guard_config if guard else None, device)
         body = json.loads(spec_file.read_text())
         table = [(v["cell"], v["manifest_hash"][:12], ", ".join(s for s in v["stressors"]) or "none",
                   f"{sum(e['success'] for e in v['episodes'])}/{len(v['episodes'])}") for v in body["variants"]]

@@ -93,23 +93,36 @@ class FlowParams(BaseModel):
         return f"{name}: {first['msg']}" + (f" (got {first['input']!r})" if "input" in first else "")
 
 
-class ComputeParams(FlowParams):
-    """Where a training flow runs (``tasks.device.Runtime``); none of it enters a checkpoint id."""
+class DeviceParams(FlowParams):
+    """Where a flow's models compute (``tasks.device``); it never enters an id or a result."""
 
     device: str | None = Field(None, description="auto | cpu | cuda | cuda:N (default: $WORLDLINE_DEVICE, else auto)")
-    precision: Literal["fp32", "bf16"] = Field("fp32", description="bf16: bfloat16 autocast (CUDA only)")
-    compile_model: bool = Field(False, description="torch.compile(mode='reduce-overhead'): CUDA graphs")
 
     @model_validator(mode="after")
     def _device_is_there(self):
-        from tasks.device import DeviceError
+        self.torch_device()
+        return self
+
+    def torch_device(self):
+        from tasks.device import DeviceError, Runtime
 
         try:
-            device = self.runtime().torch_device()
+            return (Runtime(device=self.device) if self.device else Runtime()).torch_device()
         except ValidationError as exc:  # a device name Runtime does not know
             raise Refused(f"{{device}}: {exc.errors()[0]['msg'].removeprefix('Value error, ')}") from None
         except DeviceError as exc:
             raise Refused(f"{{device}}: {str(exc).removeprefix(f'--device {self.device}: ')}") from None
+
+
+class ComputeParams(DeviceParams):
+    """Where a training flow runs (``tasks.device.Runtime``); none of it enters a checkpoint id."""
+
+    precision: Literal["fp32", "bf16"] = Field("fp32", description="bf16: bfloat16 autocast (CUDA only)")
+    compile_model: bool = Field(False, description="torch.compile(mode='reduce-overhead'): CUDA graphs")
+
+    @model_validator(mode="after")
+    def _precision_fits(self):
+        device = self.torch_device()
         if self.precision == "bf16" and device.type != "cuda":
             raise Refused(f"{{precision}}: bf16 runs only on a CUDA device ({{device}} gives {device})")
         return self

@@ -6,13 +6,13 @@ from typing import Annotated
 
 from pydantic import Field, model_validator
 
-from flows.params import (Episodes, FlowParams, Holdout, PanelEpisodes, Refused, Seed, Side, Steps, WorldSamples,
+from flows.params import (DeviceParams, Episodes, FlowParams, Holdout, PanelEpisodes, Refused, Seed, Side, Steps, WorldSamples,
                           Worst)
 
 GRID = "stressor grid YAML (schemas/panel.py StressorGrid); default: nominal, clean, then one stressor at a time"
 
 
-class PanelsParams(FlowParams):
+class PanelsParams(DeviceParams):
     manifest: str = Field(description="scenario manifest YAML")
     grid: str | None = Field(None, description=GRID)
     episodes: PanelEpisodes | None = Field(None, description="seeds per cell (default: the grid's)")
@@ -24,7 +24,7 @@ class PanelsParams(FlowParams):
     cli_paths = ("manifest", "grid")
 
 
-class EvaluateParams(FlowParams):
+class EvaluateParams(DeviceParams):
     manifest: str = Field(description="scenario manifest YAML")
     policies: list[str] | None = Field(None, description="scripted | scripted:NOISE | bc:CHECKPOINT_FOLDER | "
                                        "bc:CHECKPOINT_ID (repeat; default: scripted and scripted:0.8)")
@@ -49,7 +49,7 @@ def _drives_arms(scenario, manifest: str, what: str) -> None:
         raise Refused(f"{manifest}: {what}; this manifest's embodiment is {scenario.embodiment.kind!r}")
 
 
-class TrainPolicyParams(FlowParams):
+class TrainPolicyParams(DeviceParams):
     manifest: str = Field(description="scenario manifest YAML")
     episodes: Episodes = Field(30, description="scripted demonstrations (seeds seed+1000...)")
     steps: Steps = Field(3000, description="training steps")

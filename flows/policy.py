@@ -41,20 +41,20 @@ held_out = task(bc.success_rate, name="held-out-success", cache_policy=NO_CACHE)
 
 
 @task(name="train-bc", cache_policy=NO_CACHE)
-def train(demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path, scenario, extra: dict):
-    model, history = bc.train_bc(demos, config)
+def train(demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path, scenario, extra: dict, device="cpu"):
+    model, history = bc.train_bc(demos, config, device=device)
     bc.save_checkpoint(model, folder, scenario, config, extra)
     return model, history
 
 
 @task(name="train-vision-dagger", cache_policy=NO_CACHE)
 def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], config: bc.TrainConfig, folder: Path,
-                 extra: dict):
+                 extra: dict, device="cpu"):
     """Behaviour cloning on the expert's camera demonstrations, then DAgger rounds."""
     demos = vision.collect(scenario, seeds, spec)
-    model, history = vision_train.train_vision(demos, spec, config)
+    model, history = vision_train.train_vision(demos, spec, config, device=device)
     model, demos, more = vision_train.dagger(scenario, spec, demos, model, rounds,
-                                             config, offset=config.steps)
+                                             config, offset=config.steps, device=device)
     learner = sorted({(row["round"], row["learner_success"]) for row in more})
     vision_train.save_checkpoint(model, spec, folder, scenario, config, {
         **extra, "demonstrations": int(len(demos.act)), "successes": sum(demos.successes[:len(seeds)]),
@@ -64,15 +64,17 @@ def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], conf
 
 @flow(name="train-policy", log_prints=True)
 def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, preset_name: str = "tiny", seed: Seed = 0,
-                 holdout: Holdout = 10, observe: str | None = None, image_size: Side = 64, dagger: int = 0) -> dict:
+                 holdout: Holdout = 10, observe: str | None = None, image_size: Side = 64, dagger: int = 0,
+                 device: str | None = None) -> dict:
     """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations;
-    with ``observe``, a vision policy on those cameras, then ``dagger`` DAgger rounds."""
+    with ``observe``, a vision policy on those cameras, then ``dagger`` DAgger rounds.
+    ``device``: where the network trains (``tasks.device``; not part of the checkpoint's id)."""
     checks = TrainPolicyParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
     scenario = load_manifest(Path(manifest))
     checks.check_scenario(scenario)
-    spec = checks.spec()
+    spec, on = checks.spec(), checks.torch_device()
     config = bc.TrainConfig(preset=preset_name, steps=steps, seed=seed, batch_size=64 if spec else 256)
     train_seeds = list(range(scenario.seed + TRAIN_OFFSET, scenario.seed + TRAIN_OFFSET + episodes))
     test_seeds = list(range(scenario.seed + HOLDOUT_OFFSET, scenario.seed + HOLDOUT_OFFSET + holdout))
@@ -93,12 +95,13 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
         if not stage.done:
             extra = {"checkpoint_id": checkpoint_id, "train_seeds": train_seeds}
             if spec:
-                history, learner = train_seeing(scenario, spec, train_seeds, rounds, config, folder, extra)
+                history, learner = train_seeing(scenario, spec, train_seeds, rounds, config, folder, extra, on)
                 policy = VisionPolicy.from_checkpoint(folder)
             else:
                 demos = collect(scenario, train_seeds)
                 model, history = train(demos, config, folder, scenario,
-                                       {**extra, "demonstrations": int(len(demos.obs)), "successes": sum(demos.successes)})
+                                       {**extra, "demonstrations": int(len(demos.obs)), "successes": sum(demos.successes)},
+                                       on)
                 policy, learner = bc.BCPolicy.from_checkpoint(folder), []
             rate, outcomes = held_out(scenario, policy, test_seeds) if test_seeds else (None, [])
             attrs = {"preset": preset_name, "steps": steps, "train_seeds": train_seeds, "held_out_seeds": test_seeds,

@@ -55,13 +55,13 @@ class ClosedLoopResult:
 
 
 def closed_loop(checkpoint: Path | str, request: ClosedLoopRequest, policy: FramePolicy,
-                root: Path | str = ".") -> ClosedLoopResult:
+                root: Path | str = ".", device: str | None = None) -> ClosedLoopResult:
     import torch
 
     from tasks.world.data import align_actions, encode_frames
     from tasks.world.heldout import decode
 
-    model, tokenizer, size = _load(str(Path(checkpoint).resolve()), str(Path(root).resolve()))
+    model, tokenizer, size = _load(str(Path(checkpoint).resolve()), str(Path(root).resolve()), device)
     if not model.config.action_conditioned:
         raise WorldModelUnavailable(f"{checkpoint}: the world model is not action-conditioned, so no policy "
                                     "can drive it (post-train it on episodes first)")

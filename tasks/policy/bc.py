@@ -125,11 +125,12 @@ def collect(manifest: ScenarioManifest, seeds: Sequence[int], noise: float | Non
 
 def train_bc(demos: Demonstrations, config: TrainConfig = TrainConfig(),
              log: Callable[[dict], None] | None = None,
-             start: BCPolicyNet | None = None) -> tuple[BCPolicyNet, list[dict]]:
+             start: BCPolicyNet | None = None, device: str | torch.device = "cpu") -> tuple[BCPolicyNet, list[dict]]:
     """Seeded: the same demonstrations and config give the same weights. MSE on standardised
     actions; history rows every 1/20 of the run: step, loss, seconds. With ``start``, training
     continues from a copy of it (post-training) and keeps its normalisation statistics, so the
-    network's inputs and outputs keep the meaning its weights were trained on."""
+    network's inputs and outputs keep the meaning its weights were trained on. ``device``: where
+    it trains (minibatch indices drawn on the CPU); the model is returned there."""
     torch.manual_seed(config.seed)
     threads = torch.get_num_threads()
     torch.set_num_threads(config.threads)
@@ -140,9 +141,11 @@ def train_bc(demos: Demonstrations, config: TrainConfig = TrainConfig(),
         else:
             model = BCPolicyNet(preset(config.preset, obs.shape[1]))
             model.set_statistics(obs, act)
-        target = (act - model.act_mean) / model.act_std
-        history = fit(model, lambda b: torch.nn.functional.mse_loss(model.forward_normalised(obs[b]), target[b]),
-                      obs.shape[0], config, log)
+        model.to(device)
+        obs = obs.to(device)
+        target = (act.to(device) - model.act_mean) / model.act_std
+        history = fit(model, lambda b: torch.nn.functional.mse_loss(model.forward_normalised(obs[b.to(device)]),
+                                                                    target[b.to(device)]), obs.shape[0], config, log)
         return model.eval(), history
     finally:
         torch.set_num_threads(threads)
@@ -174,7 +177,7 @@ class BCController:
             raise ValueError(f"policy expects {model.config.obs_size} observations; this scene gives {obs_size(self.arm)}")
         # One small matrix product per control step: in numpy, because torch's thread pool
         # costs more than the product (4x slower per episode on a busy 2-core machine).
-        state = {k: v.detach().numpy().astype(np.float64) for k, v in model.state_dict().items()}
+        state = {k: v.detach().cpu().numpy().astype(np.float64) for k, v in model.state_dict().items()}
         self.layers = [(state[f"net.{i}.weight"].T, state[f"net.{i}.bias"])
                        for i, layer in enumerate(model.net) if isinstance(layer, torch.nn.Linear)]
         self.obs_mean, self.obs_std = state["obs_mean"], state["obs_std"]

@@ -117,7 +117,7 @@ def spearman(a: Sequence[float | None], b: Sequence[float | None]) -> float | No
 
 
 def world_verdict(world_model: str, variant: ScenarioManifest, camera: str, done: Rollout,
-                  root: Path) -> tuple[bool | None, str]:
+                  root: Path, device: str | None = None) -> tuple[bool | None, str]:
     """The world model rolls the policy's actions out from the episode's first frame; the
     frame detector judges what it generates (nothing generated here is written, so the face
     guard has nothing to guard)."""
@@ -125,7 +125,7 @@ def world_verdict(world_model: str, variant: ScenarioManifest, camera: str, done
     n_frames = int(variant.horizon_s * cam.fps + 1e-9)
     request = WorldModelRequest(camera=camera, context=done.context, actions=done.actions,
                                 control_hz=done.control_hz, fps=cam.fps, frames=n_frames, text=world_text(variant))
-    generated = world_model_rollout(world_model, request, root)
+    generated = world_model_rollout(world_model, request, root, device=device)
     verdict = judge_frames(generated, cam, variant.evaluation, done.package_start, reference=done.context[0])
     return verdict.success, verdict.reason
 
@@ -145,13 +145,14 @@ class WorldJudgement:
 
 
 def world_judgement(world_model: str, variant: ScenarioManifest, camera: str, done: Rollout, root: Path,
-                    samples: int = 1, temperature: float = 1.0, min_sure: float = 0.75) -> WorldJudgement:
+                    samples: int = 1, temperature: float = 1.0, min_sure: float = 0.75,
+                    device: str | None = None) -> WorldJudgement:
     """``samples`` = 1: one greedy rollout (``world_verdict``). More: that many rollouts sampled at
     ``temperature`` (seeds 0..samples-1, so a re-run judges the same), each judged by the frame
     detector; the verdict is the majority of the decided ones when at least ``min_sure`` of
     them agree, else undecided."""
     if samples <= 1:
-        verdict, reason = world_verdict(world_model, variant, camera, done, root)
+        verdict, reason = world_verdict(world_model, variant, camera, done, root, device)
         return WorldJudgement(verdict, reason, None, (verdict,))
     cam = next(c for c in variant.cameras if c.name == camera)
     n_frames = int(variant.horizon_s * cam.fps + 1e-9)
@@ -159,7 +160,8 @@ def world_judgement(world_model: str, variant: ScenarioManifest, camera: str, do
                                 control_hz=done.control_hz, fps=cam.fps, frames=n_frames, text=world_text(variant))
     votes = []
     for seed in range(samples):
-        generated = world_model_rollout(world_model, request, root, temperature=temperature, seed=seed)
+        generated = world_model_rollout(world_model, request, root, temperature=temperature, seed=seed,
+                                        device=device)
         votes.append(judge_frames(generated, cam, variant.evaluation, done.package_start,
                                   reference=done.context[0]).success)
     decided = [v for v in votes if v is not None]

@@ -25,6 +25,7 @@ import tasks.sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
 from models.vision_policy import VisionPolicyNet
 from schemas.manifest import ScenarioManifest
 from schemas.panel import PanelContract
+from tasks.device import model_device
 from tasks.policy.base import Policy
 from tasks.policy.bc import physics_only, require_arm
 from tasks.policy.vision_obs import ObservationSpec, Observer, proprio, proprio_size
@@ -83,7 +84,9 @@ class _Learner:
         torch.set_num_threads(1)
         try:
             with torch.inference_mode():
-                return self.model(torch.from_numpy(frames)[None], torch.from_numpy(state)[None])[0].numpy()
+                device = model_device(self.model)  # the CPU, or where it was just trained (DAgger)
+                return self.model(torch.from_numpy(frames)[None].to(device),
+                                  torch.from_numpy(state)[None].to(device))[0].cpu().numpy()
         finally:
             torch.set_num_threads(threads)
 

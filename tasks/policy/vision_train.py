@@ -30,10 +30,12 @@ KEY = "vision"
 
 
 def train_vision(demos: VisionDemonstrations, spec: ObservationSpec, config: TrainConfig = TrainConfig(),
-                 start: VisionPolicyNet | None = None, log: Callable[[dict], None] | None = None
-                 ) -> tuple[VisionPolicyNet, list[dict]]:
+                 start: VisionPolicyNet | None = None, log: Callable[[dict], None] | None = None,
+                 device: str | torch.device = "cpu") -> tuple[VisionPolicyNet, list[dict]]:
     """Seeded: the same demonstrations and config give the same weights. History rows every
-    1/20 of the run: step, loss, smoothed loss, seconds."""
+    1/20 of the run: step, loss, smoothed loss, seconds. ``device``: where it trains (the
+    demonstrations move there whole; minibatch indices are drawn on the CPU, so the same
+    samples on any device); the model is returned there (``tasks.device``)."""
     torch.manual_seed(config.seed)
     threads = torch.get_num_threads()
     torch.set_num_threads(config.threads)
@@ -46,9 +48,15 @@ def train_vision(demos: VisionDemonstrations, spec: ObservationSpec, config: Tra
             model = VisionPolicyNet(preset(config.preset, len(spec.cameras), spec.image_size, state.shape[1]))
             sample = torch.randperm(len(frames), generator=torch.Generator().manual_seed(config.seed))[:2000]
             model.set_statistics(frames[sample], state, act)
-        target = (act - model.act_mean) / model.act_std
-        history = fit(model, lambda b: torch.nn.functional.mse_loss(model.forward_normalised(frames[b], state[b]),
-                                                                    target[b]), len(frames), config, log)
+        model.to(device)
+        frames, state = frames.to(device), state.to(device)
+        target = ((act.to(device) - model.act_mean) / model.act_std)
+
+        def loss(b: torch.Tensor) -> torch.Tensor:
+            b = b.to(device)
+            return torch.nn.functional.mse_loss(model.forward_normalised(frames[b], state[b]), target[b])
+
+        history = fit(model, loss, len(frames), config, log)
         return model.eval(), history
     finally:
         torch.set_num_threads(threads)
@@ -56,7 +64,8 @@ def train_vision(demos: VisionDemonstrations, spec: ObservationSpec, config: Tra
 
 def dagger(manifest: ScenarioManifest, spec: ObservationSpec, demos: VisionDemonstrations, model: VisionPolicyNet,
            rounds: Sequence[Sequence[int]], config: TrainConfig, offset: int = 0,
-           log: Callable[[dict], None] | None = None) -> tuple[VisionPolicyNet, VisionDemonstrations, list[dict]]:
+           log: Callable[[dict], None] | None = None, device: str | torch.device = "cpu"
+           ) -> tuple[VisionPolicyNet, VisionDemonstrations, list[dict]]:
     """One DAgger round per seed list in ``rounds``: the learner's episodes, expert-labelled,
     added to ``demos``; then, as in DAgger, a policy trained afresh on the aggregate, its
     normalisation statistics recomputed. (Continuing from the current weights kept the
@@ -69,7 +78,7 @@ def dagger(manifest: ScenarioManifest, spec: ObservationSpec, demos: VisionDemon
         visited = collect(manifest, seeds, spec, learner=VisionPolicy(model, spec), round_=k)
         demos = demos + visited
         rate = sum(visited.successes) / max(1, len(visited.successes))
-        model, rows = train_vision(demos, spec, config.model_copy(update={"seed": config.seed + k}))
+        model, rows = train_vision(demos, spec, config.model_copy(update={"seed": config.seed + k}), device=device)
         history += [{**row, "step": offset + (k - 1) * config.steps + row["step"], "round": k, "learner_success": rate}
                     for row in rows]
         if log:

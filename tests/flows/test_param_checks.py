@@ -50,6 +50,8 @@ CHECKS = [
     (tokenize, {"shards": "x", "crop": 128}, ["tokenize", "x", "--crop", "128"], "128 is larger than"),
     (tokenize, {"shards": "x", "device": "tpu"}, ["tokenize", "x", "--device", "tpu"],
      "expected auto, cpu, cuda or cuda:N"),
+    (panels, {"manifest": PUSH, "device": "tpu"}, ["panels", PUSH, "--device", "tpu"],
+     "expected auto, cpu, cuda or cuda:N"),
     (train, {"manifest": PUSH, "device": "cpu", "precision": "bf16"}, ["train", PUSH, "--device", "cpu", "--precision", "bf16"],
      "bf16 runs only on a CUDA device"),
     (train, {"manifest": PUSH, "preset_name": "huge"}, ["train", PUSH, "--preset", "huge"],
@@ -137,7 +139,10 @@ def test_each_flow_validates_with_a_model_of_its_very_parameters(flow, model):
 @pytest.mark.skipif(__import__("torch").cuda.is_available(), reason="this machine has a GPU")
 @pytest.mark.parametrize("flow,params,argv", [
     (tokenize, {"shards": "x", "device": "cuda"}, ["tokenize", "x", "--device", "cuda"]),
-    (train, {"manifest": PUSH, "device": "cuda:0"}, ["train", PUSH, "--device", "cuda:0"])])
+    (train, {"manifest": PUSH, "device": "cuda:0"}, ["train", PUSH, "--device", "cuda:0"]),
+    (train_policy, {"manifest": PUSH, "device": "cuda"}, ["train-policy", PUSH, "--device", "cuda"]),
+    (evaluate, {"manifest": PUSH, "device": "cuda"}, ["evaluate", "policies", PUSH, "--device", "cuda"]),
+    (panels, {"manifest": PUSH, "device": "cuda"}, ["panels", PUSH, "--device", "cuda"])])
 def test_cuda_without_a_gpu_is_refused_in_one_line(flow, params, argv):
     done = runner.invoke(app, argv)
     assert done.exit_code == 2 and "no CUDA GPU is visible to PyTorch" in done.output, done.output

@@ -82,3 +82,11 @@ def test_sampled_rollouts_differ_by_seed_and_repeat_with_it(checkpoint):
     a, b = (world_model_rollout(checkpoint / "wm", _request(), root=checkpoint, temperature=1.0, seed=s) for s in (0, 1))
     again = world_model_rollout(checkpoint / "wm", _request(), root=checkpoint, temperature=1.0, seed=0)
     assert np.array_equal(a, again) and not np.array_equal(a[1:], b[1:])
+
+
+def test_the_device_changes_where_it_computes_not_what(checkpoint):
+    cpu = world_model_rollout(checkpoint / "wm", _request(), root=checkpoint, device="cpu")
+    assert np.array_equal(cpu, world_model_rollout(checkpoint / "wm", _request(), root=checkpoint))
+    if torch.cuda.is_available():  # on a GPU: frames within a grey level or two of the CPU's
+        gpu = world_model_rollout(checkpoint / "wm", _request(), root=checkpoint, device="cuda")
+        assert gpu.shape == cpu.shape and np.mean(np.abs(gpu.astype(int) - cpu.astype(int)) > 2) < 0.01

@@ -115,3 +115,25 @@ def test_dagger_labels_the_learners_own_states_with_the_experts_moves(demos):
     # A barely trained learner does not follow the expert: its states are its own, not a demonstration's.
     assert not np.allclose(aggregate.proprio[added][-1], demos.proprio[len(demos.act) // 2 - 1])
     assert np.all(np.isfinite(aggregate.act[added]))
+
+
+def test_an_explicit_cpu_device_trains_the_very_same_weights(demos):
+    config = TrainConfig(steps=8, batch_size=16)
+    plain, _ = train_vision(demos, SPEC, config)
+    on_cpu, _ = train_vision(demos, SPEC, config, device="cpu")
+    assert all(torch.equal(a, b) for a, b in zip(plain.state_dict().values(), on_cpu.state_dict().values()))
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA GPU on this machine (CI never has one)")
+def test_a_vision_policy_trained_on_the_gpu_acts_the_same_on_the_cpu(demos, tmp_path):
+    config = TrainConfig(steps=20, batch_size=16)
+    model, history = train_vision(demos, SPEC, config, device="cuda")
+    assert next(model.parameters()).device.type == "cuda" and np.isfinite(history[-1]["loss"])
+    save_checkpoint(model, SPEC, tmp_path / "ck", PUSH, config, {"checkpoint_id": "d" * 64})
+    loaded, _, _ = load_checkpoint(tmp_path / "ck")
+    x, p = torch.from_numpy(demos.frames[:4]), torch.from_numpy(demos.proprio[:4])
+    with torch.inference_mode():
+        assert torch.allclose(model(x.cuda(), p.cuda()).cpu(), loaded(x, p), atol=1e-4)
+    # The learner drives the simulator from the GPU too (a DAgger round).
+    _, aggregate, _ = dagger(PUSH, SPEC, demos, model, [[7]], TrainConfig(steps=2, batch_size=16), device="cuda")
+    assert (aggregate.round == 1).sum() == round(PUSH.horizon_s * 50)
