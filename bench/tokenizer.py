@@ -60,7 +60,7 @@ def render(out: Path, train: int, heldout: int, size: int, manifest_path: Path =
                 arrays[f"{name}_{i:04d}_{camera}"] = resize(frames, size)
             print(f"rendered {name} seed {seed}: {frames.shape} in {time.perf_counter() - t0:.1f}s", flush=True)
     out.mkdir(parents=True, exist_ok=True)
-    np.savez(cache, **arrays)
+    np.savez_compressed(cache, **arrays)
     return render(out, train, heldout, size, manifest_path)
 
 
@@ -240,6 +240,8 @@ def main() -> None:
     ap.add_argument("--compile", action="store_true", help="torch.compile(mode='reduce-overhead') for training")
     ap.add_argument("--precision", default="fp32", choices=["fp32", "bf16"])
     ap.add_argument("--tf32", action="store_true", help="allow TF32 matmuls and convolutions on a GPU")
+    ap.add_argument("--no-h264", action="store_true", help="leave out the H.264 curves (minutes of x264 on one "
+                    "core; they do not depend on the device)")
     args = ap.parse_args()
     args.runtime = Runtime(device=args.device, precision=args.precision, compile=args.compile, tf32=args.tf32)
     device = args.runtime.torch_device()
@@ -253,7 +255,7 @@ def main() -> None:
     heldout = windows(held, args.clip_frames)
     print(f"{args.manifest.name}: train {len(train)} camera streams x {train[0].shape[0]} frames; held-out: {len(heldout)} clips of "
           f"{args.clip_frames} frames at {args.size}x{args.size}", flush=True)
-    curves = {fmt: h264_curve(heldout, fmt) for fmt in ("yuv420p", "yuv444p")}
+    curves = {} if args.no_h264 else {fmt: h264_curve(heldout, fmt) for fmt in ("yuv420p", "yuv444p")}
     results = [run_variant(v, train, heldout, args) for v in args.variants.split(",")]
 
     fmt = lambda v, p=2: "n/a" if v is None else f"{v:.{p}f}"  # noqa: E731
