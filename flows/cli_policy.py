@@ -5,6 +5,7 @@ from __future__ import annotations
 from flows import cli_checks as need
 from flows.cli_shell import app, command, err, evaluate_app, fail, out, print_rows, writing
 from flows.params_policy import EvaluateParams, LoopParams, PanelsParams, TrainPolicyParams
+from schemas.settings import Settings
 
 
 @command(app, PanelsParams)
@@ -48,24 +49,26 @@ def train_policy_cmd(params: TrainPolicyParams) -> None:
 @command(evaluate_app, EvaluateParams, "policies", listing=True)
 def evaluate_policies_cmd(params: EvaluateParams, fmt: str = "table") -> None:
     """Policies on a panel: simulator and frame-detector success per stressor cell, their rank
-    correlation (Prefect flow `evaluate`); exit 2 when panel contracts differ. With csv or json,
-    the rows alone on stdout and the correlations on stderr."""
+    correlation (Prefect flow `evaluate`); with --in-world-model, vision policies also driven
+    closed loop in the world model; exit 2 when panel contracts differ. With csv or json, the
+    rows alone on stdout and the correlations on stderr."""
     parent = need.simulable(params.manifest)
     for other in params.compare or []:
         need.simulable(other)
     need.grid(parent, params.grid, params.episodes)
     from tasks.panels.contract import PanelContractError
 
-    from flows.evaluate import DEFAULT_POLICIES, agreement_line, plan
+    from flows.evaluate import DEFAULT_POLICIES, JUDGES, agreement_line, plan
     from flows.evaluate import evaluate as evaluate_flow
 
     specs, loaded = need.policies(params.policies or [])
     folder = need.world_model(params.world_model) if params.world_model else None
+    loaded = loaded or need.policies(list(DEFAULT_POLICIES))[1]
     try:  # the flow plans again; refusing here spares starting Prefect for nothing
-        plan([params.manifest, *(params.compare or [])], params.grid, params.episodes,
-             loaded or need.policies(list(DEFAULT_POLICIES))[1])
+        plan([params.manifest, *(params.compare or [])], params.grid, params.episodes, loaded)
     except PanelContractError as exc:
         fail(str(exc))
+    params.check_world(parent, loaded, folder, Settings().data_root)
 
     writing()
     try:
@@ -73,16 +76,18 @@ def evaluate_policies_cmd(params: EvaluateParams, fmt: str = "table") -> None:
             "policies": specs or None, "compare": params.compare or [], "world_model": folder}).model_dump())
     except PanelContractError as exc:
         fail(str(exc))
-    rows = [(e["panel"], e["policy"], r["cell"], r["episodes"], *("-" if r[k] is None else f"{r[k]:.2f}"
-                                                                  for k in ("sim", "detector", "world")))
+    judges = ("sim", "detector", "world", *(["closed"] if params.in_world_model else []))
+    rows = [(e["panel"], e["policy"], r["cell"], r["episodes"], *("-" if r.get(k) is None else f"{r[k]:.2f}"
+                                                                  for k in judges))
             for e in result["evaluations"] for r in e["table"]]
-    print_rows(["panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model"], rows, fmt,
+    print_rows(["panel", "policy", "cell", "episodes", "simulator", "detector on sim", "world model",
+                *([JUDGES["closed"]] if params.in_world_model else [])], rows, fmt,
                title="success rate per stressor cell")
     prose = out if fmt == "table" else err  # csv and json stay parseable
     prose.print("Spearman (simulator vs): " + ", ".join(f"{k} {'-' if v is None else f'{v:.2f}'}"
                                                          for k, v in result["spearman"].items()), highlight=False)
     for column, a in result["agreement"].items():
-        prose.print(agreement_line(f"{column} vs simulator, per episode", a), highlight=False)
+        prose.print(agreement_line(f"{JUDGES.get(column, column)} vs simulator, per episode", a), highlight=False)
 
 
 @command(app, LoopParams, "loop", listing=True)

@@ -6,8 +6,8 @@ from typing import Annotated
 
 from pydantic import Field, model_validator
 
-from flows.params import (DeviceParams, Episodes, FlowParams, Holdout, PanelEpisodes, Refused, Seed, Side, Steps, WorldSamples,
-                          Worst)
+from flows.params import (DeviceParams, Episodes, FlowParams, Holdout, PanelEpisodes, ParamsError, Refused, Seed, Side,
+                          Steps, WorldSamples, Worst)
 
 GRID = "stressor grid YAML (schemas/panel.py StressorGrid); default: nominal, clean, then one stressor at a time"
 
@@ -38,10 +38,41 @@ class EvaluateParams(DeviceParams):
     guard: bool = True
     world_samples: WorldSamples = Field(1, description="rollouts per episode the world model judges from: 1 greedy, "
                                         "or that many sampled, the verdict undecided when under 3/4 of them agree")
+    in_world_model: bool = Field(False, description="also run each vision policy closed loop in the world model (it "
+                                 "sees the generated frames, its actions drive the model) and judge those frames")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest", "grid", "compare")
     cli_names = {"policies": "--policy"}
     cli_hidden = ("guard",)
+
+    @model_validator(mode="after")
+    def _closed_loop_needs(self):
+        if self.in_world_model and not self.world_model:
+            raise Refused("{in_world_model} needs {world_model}: the world model the policies are driven in")
+        if self.in_world_model:
+            for name in self.policies or ["scripted"]:
+                if not name.startswith("vision:"):
+                    raise Refused(f"{{in_world_model}}: policy {name!r} reads the simulator's state, not frames; only "
+                                  "vision policies (vision:PATH or vision:ID) can be driven by a world model")
+        return self
+
+    def check_world(self, scenario, policies: list, folder: str | None, root, flow: bool = False) -> None:
+        """The world model at ``folder`` against the panel of ``scenario`` (its camera, tokenizer
+        and action layout) and, with ``in_world_model``, each loaded policy against the camera
+        it generates: Refused, or in a flow ParamsError (one line either way)."""
+        from tasks.panels.grid import primary_camera
+        from tasks.policy.world_env import drive_problem, world_model_mismatch
+
+        if not folder:
+            return
+        camera = primary_camera(scenario, None)
+        problem = world_model_mismatch(folder, scenario, camera, root, driven=self.in_world_model)
+        refused = Refused(f"{{world_model}} {folder}: {problem}") if problem else None
+        if refused is None and self.in_world_model:
+            why = next((why for policy in policies if (why := drive_problem(policy, camera))), None)
+            refused = Refused(f"{{in_world_model}}: {why}") if why else None
+        if refused is not None:
+            raise ParamsError(str(refused)) if flow else refused
 
 
 def _drives_arms(scenario, manifest: str, what: str) -> None:

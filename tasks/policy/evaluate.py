@@ -3,7 +3,9 @@
 `run_episode` rolls a policy out on one variant and seed and judges it twice: the simulator's
 verdict (the manifest's evaluation target, from state) and, when frames are rendered, the
 frame detector's on the simulator's own render (`tasks.panels.detect`), which calibrates the
-detector that judges world-model rollouts. `success_table` and `spearman` summarise.
+detector that judges world-model rollouts. `world_outcome` adds the world model's verdicts:
+open loop (the episode's actions replayed) and closed loop (the policy drives the world model,
+`tasks.policy.world_env`). `success_table` and `spearman` summarise.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from tasks.panels.detect import judge_frames
 from tasks.panels.world import WorldModelRequest, world_model_rollout, world_text
 from tasks.policy.base import Policy
 from tasks.policy.bc import physics_only
+from tasks.policy.world_env import closed_loop_verdict
 from tasks.sim.episode import rollout
 from tasks.sim.scene import SimConfig
 
@@ -36,9 +39,16 @@ class EpisodeOutcome:
     world: bool | None = None  # the frame detector on the world model's rollout; None: no world model / undecided
     world_reason: str | None = None
     world_sure: float | None = None  # share of sampled rollouts that agree with the verdict (None: greedy, one)
+    closed: bool | None = None  # the frame detector on the policy's closed loop in the world model
+    closed_reason: str | None = None  # None: no closed loop was run
 
     def as_dict(self) -> dict:
-        return dict(self.__dict__)
+        """Without the closed-loop fields when none was run, so an evaluation's body is what it
+        was before closed loops existed."""
+        out = dict(self.__dict__)
+        if self.closed_reason is None:
+            del out["closed"], out["closed_reason"]
+        return out
 
 
 @dataclass(frozen=True)
@@ -76,14 +86,17 @@ def rate(values: Sequence[bool | None]) -> float | None:
 
 
 def success_table(outcomes: Sequence[EpisodeOutcome], cells: Sequence[str]) -> list[dict]:
-    """Per cell (in panel order) then 'all': episodes, simulator, detector and world-model rates."""
+    """Per cell (in panel order) then 'all': episodes, simulator, detector and world-model rates
+    (open loop; ``closed`` too when closed loops were run)."""
     rows = []
+    closed = any(o.closed_reason is not None for o in outcomes)
     for cell in [*cells, "all"]:
         mine = [o for o in outcomes if cell == "all" or o.cell == cell]
         sure = [o.world_sure for o in mine if o.world_sure is not None]
         rows.append({"cell": cell, "episodes": len(mine), "sim": rate([o.success for o in mine]),
                      "detector": rate([o.detector for o in mine]), "world": rate([o.world for o in mine]),
-                     "world_sure": float(np.mean(sure)) if sure else None})
+                     "world_sure": float(np.mean(sure)) if sure else None,
+                     **({"closed": rate([o.closed for o in mine])} if closed else {})})
     return rows
 
 
@@ -176,3 +189,18 @@ def world_judgement(world_model: str, variant: ScenarioManifest, camera: str, do
                                     f"({len(decided)} decided; {min_sure:.0%} must agree)", sure, tuple(votes))
     return WorldJudgement(majority, f"{'success' if majority else 'failure'} in {yes if majority else len(decided) - yes}"
                                     f" of {samples} sampled rollouts", sure, tuple(votes))
+
+
+def world_outcome(done: Rollout, variant: ScenarioManifest, policy: Policy, camera: str,
+                  world_model: str, root: Path, samples: int = 1, closed: bool = False,
+                  device: str | None = None) -> EpisodeOutcome:
+    """The episode's outcome with the world model's verdicts: open loop from ``samples``
+    rollouts (``world_judgement``), and with ``closed`` the policy's closed loop (greedy; a
+    vision policy, `tasks.policy.world_env`)."""
+    judged = world_judgement(world_model, variant, camera, done, root, samples, device=device)
+    extra = {"world": judged.verdict, "world_reason": judged.reason, "world_sure": judged.sure}
+    if closed:
+        verdict, reason = closed_loop_verdict(world_model, variant, camera, done, policy, done.outcome.seed, root,
+                                              device)
+        extra.update(closed=verdict, closed_reason=reason)
+    return EpisodeOutcome(**{**done.outcome.as_dict(), **extra})

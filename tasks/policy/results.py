@@ -13,6 +13,8 @@ from tasks.policy.bc import BCPolicy
 from tasks.policy.vision import VisionPolicy
 from tasks.policy.evaluate import agreement, spearman
 
+JUDGES = {"closed": "world model closed loop"}  # judges' names in printed lines, where the key says too little
+
 
 def fmt(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f}"
@@ -41,8 +43,8 @@ def evaluation_lineage(evaluation_id: str, result_file: Path, root: Path, body: 
         batch.edges.append(EdgeRecord(parent_id=checkpoint_id, child_id=evaluation_id, relation="policy"))
     for row in body["table"]:
         suffix = "" if row["cell"] == "all" else f"/{row['cell']}"
-        for column in ("sim", "detector", "world"):
-            if row[column] is not None:
+        for column in ("sim", "detector", "world", "closed"):  # closed: only when closed loops were run
+            if row.get(column) is not None:
                 batch.metrics.append(MetricRecord(subject_id=evaluation_id, name=f"{column}_success_rate{suffix}",
                                                   value=row[column], stage_run_id=stage_run_id, manifest_hash=digest,
                                                   attrs={"cell": row["cell"], "episodes": row["episodes"]}))
@@ -51,17 +53,14 @@ def evaluation_lineage(evaluation_id: str, result_file: Path, root: Path, body: 
 
 def comparison(results: list[tuple[str, str, str, list[dict]]], episodes: list[dict]) -> tuple[str, dict]:
     """(comparison id, body): rank correlation of the simulator's verdicts with the frame
-    detector's and the world model's, across policies (overall rates) and across policy x cell
-    rates, and their agreement episode by episode."""
+    detector's and the world model's (open loop, and closed loop when it was run), across
+    policies (overall rates) and across policy x cell rates, and their agreement episode by episode."""
     overall = [next(r for r in t if r["cell"] == "all") for *_, t in results]
     cells = [r for *_, t in results for r in t if r["cell"] != "all"]
-    corr = {
-        "sim_vs_world": spearman([r["sim"] for r in overall], [r["world"] for r in overall]),
-        "sim_vs_detector": spearman([r["sim"] for r in overall], [r["detector"] for r in overall]),
-        "sim_vs_world_cells": spearman([r["sim"] for r in cells], [r["world"] for r in cells]),
-        "sim_vs_detector_cells": spearman([r["sim"] for r in cells], [r["detector"] for r in cells]),
-    }
-    agree = {column: agreement(episodes, column) for column in ("detector", "world")}
+    closed = ["closed"] if any("closed" in r for r in overall) else []
+    corr = {f"sim_vs_{judge}{suffix}": spearman([r["sim"] for r in rows], [r.get(judge) for r in rows])
+            for suffix, rows in (("", overall), ("_cells", cells)) for judge in ("world", "detector", *closed)}
+    agree = {column: agreement(episodes, column) for column in ("detector", "world", *closed)}
     ids = sorted(e for _, _, e, _ in results)
     body = {"format": "worldline-evaluation-comparison/1", "evaluations": ids, "spearman": corr, "agreement": agree,
             "overall": [{"panel": p, "policy": n, **next(r for r in t if r["cell"] == "all")} for p, n, _, t in results]}

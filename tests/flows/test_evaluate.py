@@ -1,5 +1,7 @@
-"""The evaluate flow: success per stressor cell and policy, lineage, contract refusal."""
+"""The evaluate flow: success per stressor cell and policy, lineage, contract refusal, and a
+vision policy driven closed loop in a world model."""
 
+import json
 from pathlib import Path
 
 import pytest
@@ -117,3 +119,53 @@ def test_unlike_contracts_are_refused_before_any_work(prefect_harness, data_root
     assert result.exit_code == 2 and "horizon: 3.0 vs 2.5" in result.output
     result = CliRunner().invoke(app, ["evaluate", "policies", str(manifest), "--policy", "bc:/nowhere"])
     assert result.exit_code == 2 and "not a behaviour-cloning checkpoint" in result.output
+
+
+def vision_checkpoint(tmp_path: Path, manifest: Path, camera: str = "overhead") -> Path:
+    """An untrained tiny vision policy on one of the manifest's cameras, saved as train-policy saves it."""
+    import torch
+
+    from models.vision_policy import VisionPolicyNet, preset
+    from tasks.policy.vision_obs import ObservationSpec, proprio_size
+    from tasks.policy.vision_train import save_checkpoint as save_vision
+    from tasks.sim.control import ArmController
+    from tasks.sim.scene import build_scene
+
+    scenario = load(manifest)
+    torch.manual_seed(0)
+    arm = ArmController(build_scene(scenario, 0), 0)
+    folder = tmp_path / f"vision-{camera}"
+    save_vision(VisionPolicyNet(preset("tiny", 1, 32, proprio_size(arm))),
+                ObservationSpec(cameras=(camera,), image_size=32), folder, scenario, TrainConfig(steps=1))
+    return folder
+
+
+def test_a_vision_policy_driven_closed_loop_in_the_world_model(prefect_harness, data_root, tmp_path):
+    from tests.flows.test_panels import random_world_model
+
+    manifest, grid = _manifest(tmp_path, "push", "1.0"), tmp_path / "grid.yaml"
+    grid.write_text("name: one\ncells: [{name: nominal}]\nepisodes: 1\n")
+    policy, wm = f"vision:{vision_checkpoint(tmp_path, manifest)}", str(random_world_model(tmp_path))
+    replayed = evaluate(str(manifest), str(grid), policies=[policy], world_model=wm)
+    result = evaluate(str(manifest), str(grid), policies=[policy], world_model=wm, in_world_model=True)
+
+    (plain,), (closed,) = replayed["evaluations"], result["evaluations"]
+    assert plain["evaluation_id"] != closed["evaluation_id"]  # the closed loop is another evaluation
+    assert not any("closed" in r for r in plain["table"]) and "sim_vs_closed" not in replayed["spearman"]
+    assert [r["cell"] for r in closed["table"]] == ["nominal", "all"] and all("closed" in r for r in closed["table"])
+    body = json.loads((data_root / "evaluations" / closed["evaluation_id"] / "result.json").read_text())
+    (episode,) = body["episodes"]
+    assert body["closed_loop"] is True and episode["closed"] in (None, True, False)
+    assert episode["closed_reason"] and episode["world_reason"]  # the detector judged both rollouts' frames
+    assert {"sim_vs_closed", "sim_vs_closed_cells"} <= set(result["spearman"])
+    assert result["agreement"]["closed"]["episodes"] == 1
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        counts = wh.counts()
+
+    # The command line shows the closed loop beside the replay, and reads the finished evaluation back.
+    said = CliRunner().invoke(app, ["evaluate", "policies", str(manifest), "--grid", str(grid), "--policy", policy,
+                                    "--world-model", wm, "--in-world-model", "--format", "csv"])
+    assert said.exit_code == 0, said.output
+    assert "world model closed loop" in said.output and "world model closed loop vs simulator" in said.output
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        assert {k: v for k, v in wh.counts().items() if k != "runs"} == {k: v for k, v in counts.items() if k != "runs"}

@@ -4,6 +4,7 @@ by the flow as a deployment run calls it (Prefect's validation of the parameters
 flow's first line), without a Prefect server."""
 
 import inspect
+import re
 
 import pytest
 from prefect.exceptions import ParameterTypeError
@@ -80,6 +81,14 @@ CHECKS = [
     (loop, {"manifest": PUSH, "worst": 9}, ["loop", PUSH, "--worst", "9"],
      ("'--worst': Input should be less than or equal to 8",
       "worst: Input should be less than or equal to 8")),
+    (evaluate, {"manifest": PUSH, "in_world_model": True}, ["evaluate", "policies", PUSH, "--in-world-model"],
+     ("--in-world-model needs --world-model", "in_world_model needs world_model")),
+    (evaluate, {"manifest": PUSH, "world_model": "wm", "in_world_model": True},
+     ["evaluate", "policies", PUSH, "--world-model", "wm", "--in-world-model"],
+     "policy 'scripted' reads the simulator's state, not frames; only vision policies"),
+    (evaluate, {"manifest": PUSH, "world_model": "wm", "in_world_model": True, "policies": ["vision:v", "bc:b"]},
+     ["evaluate", "policies", PUSH, "--world-model", "wm", "--in-world-model", "--policy", "vision:v", "--policy", "bc:b"],
+     "policy 'bc:b' reads the simulator's state, not frames"),
 ]
 
 
@@ -155,4 +164,31 @@ def test_a_vision_policy_on_a_camera_the_manifest_lacks_is_refused_before_anythi
     assert result.exit_code == 2, result.output
     assert ("--observe: the policy observes camera(s) wrist, which conveyor-push does not have (it has overhead)"
             in " ".join(result.output.split()))
+    assert not (data_root / "lineage.duckdb").exists()
+
+
+def test_a_world_model_or_a_policy_that_does_not_fit_the_panel_is_refused_in_one_line(data_root, tmp_path):
+    """The issue's bad input: a world model post-trained on another camera (or whose tokenizer or
+    action layout differs) is named, and so is a vision policy whose camera it does not generate."""
+    from tasks.world.checkpoints import load_checkpoint, read_config, save_checkpoint
+
+    from tests.flows.test_evaluate import vision_checkpoint
+    from tests.flows.test_panels import random_world_model
+
+    wm = random_world_model(tmp_path)
+    side = tmp_path / "side"
+    save_checkpoint(load_checkpoint(wm), side, {**read_config(wm), "camera": "side"})
+    pair = str(MANIFESTS / "push_closeup_pair.yaml")
+    sees_b = f"vision:{vision_checkpoint(tmp_path, MANIFESTS / 'push_closeup_pair.yaml', 'side_b')}"
+    cases = [(PUSH, side, ["scripted"], False, "post-trained on camera side; the panel's camera is overhead"),
+             (pair, wm, [sees_b], True, "sees camera(s) side_b; the world model generates side only")]
+    for manifest, folder, policies, closed, said in cases:
+        argv = ["evaluate", "policies", manifest, "--world-model", str(folder)]
+        argv += [arg for p in policies for arg in ("--policy", p)]
+        result = runner.invoke(app, argv + (["--in-world-model"] if closed else []), terminal_width=400)
+        assert result.exit_code == 2 and said in " ".join(result.output.split()), result.output
+        assert len(result.output.strip().splitlines()) == 1
+        with pytest.raises(ParamsError, match=re.escape(said)) as refused:
+            evaluate.fn(manifest=manifest, world_model=str(folder), policies=policies, in_world_model=closed)
+        assert "\n" not in str(refused.value)
     assert not (data_root / "lineage.duckdb").exists()

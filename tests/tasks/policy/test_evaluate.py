@@ -61,3 +61,25 @@ def test_the_table_carries_the_judges_certainty():
     rows = {r["cell"]: r for r in success_table(outcomes, ["dim", "nominal"])}
     assert rows["dim"]["world_sure"] == 0.75 and rows["nominal"]["world_sure"] is None
     assert rows["all"]["world_sure"] == 0.75 and rows["dim"]["world"] == 1.0
+
+
+def test_closed_loop_verdicts_get_their_own_column_and_nothing_changes_without_them():
+    from tasks.policy.evaluate import EpisodeOutcome, success_table
+    from tasks.policy.results import comparison
+
+    plain = [EpisodeOutcome("dim", 0, True, "", world=True), EpisodeOutcome("dim", 1, False, "", world=False)]
+    assert "closed" not in plain[0].as_dict() and all("closed" not in r for r in success_table(plain, ["dim"]))
+    _, body = comparison([("p", "a", "e1", success_table(plain, ["dim"]))], [o.as_dict() for o in plain])
+    assert set(body["spearman"]) == {"sim_vs_world", "sim_vs_detector", "sim_vs_world_cells", "sim_vs_detector_cells"}
+    assert set(body["agreement"]) == {"detector", "world"}
+
+    closed = [EpisodeOutcome("dim", 0, True, "", world=True, closed=False, closed_reason="package short of goal"),
+              EpisodeOutcome("dim", 1, False, "", world=False, closed=False, closed_reason="package short of goal")]
+    rows = {r["cell"]: r for r in success_table(closed, ["dim"])}
+    assert rows["dim"]["closed"] == 0.0 and rows["dim"]["world"] == 0.5
+    assert closed[0].as_dict()["closed_reason"] == "package short of goal"
+    _, body = comparison([("p", "a", "e1", success_table(closed, ["dim"])),
+                          ("p", "b", "e2", success_table(plain, ["dim"]))], [o.as_dict() for o in closed + plain])
+    assert {"sim_vs_closed", "sim_vs_closed_cells"} <= set(body["spearman"])
+    agree = body["agreement"]["closed"]
+    assert (agree["episodes"], agree["decided"], agree["successes_agree"], agree["failures_agree"]) == (4, 2, 0, 1)
