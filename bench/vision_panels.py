@@ -140,6 +140,11 @@ def family(name: str, args) -> None:
     balanced = "-" if judged["balanced"] is None else f"{judged['balanced']:.3f}"
     print(f"frame detector on {camera}: balanced agreement {balanced} ({judged['agree']}/{judged['decided']} decided, "
           f"{judged['successes']} successes, {judged['failures']} failures)")
+    for key in policies:  # one line per disagreement, to find out what the detector misreads
+        for o in outcomes[key]:
+            if o.detector is not None and o.detector != o.success:
+                print(f"disagree: {key} {o.cell} seed {o.seed}: simulator {'success' if o.success else 'failure'} "
+                      f"({o.reason}); detector {o.detector_reason}")
     for key, value in timing.items():
         print(f"{key}: {value if isinstance(value, list) else round(value, 1)}")
     print(f"vision: inference {inference_fps(policies['vision']):.0f} frames/s (1 thread); "
