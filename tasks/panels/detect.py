@@ -10,6 +10,12 @@ outside the tolerance vetoes a partly covered disc (a near miss). A shaking came
 phase correlation, dim light by one gain for the clip. Other targets return an undecided
 verdict (success None) rather than a guess.
 
+Version 5 (undecided within the tracker's precision of the tolerance), on
+bench/vision_panels.py's push panel (7 cells x 8 seeds, a state and a vision policy, 112
+episodes): 89 of 95 decided agree (balanced 0.967; 17 undecided, 8 of them the simulator's 12
+failures, mostly the vision policy's near misses); version 4 decided all 112 and agreed on 103
+(balanced 0.845), three of its errors packages 0.051 m from the goal called successes.
+
 Version 4 (the cover), on push_closeup's held-out panel (manifests/grids/push_heldout.yaml, 8
 seeds, scripted at noise 0.3, 0.8 and 1.0, and a BC policy): 216 of 224 renders agree with the
 simulator (version 3: 213); on the tokenizer's reconstructions of the 168 scripted episodes it
@@ -39,10 +45,17 @@ from schemas.manifest import Camera, Evaluation
 # searched for in a widening window (decoded frames), the largest blob of its colours.
 # 4: the verdict is whether the goal disc is covered at the end (the package resting on it),
 # not where the colour track ends; generated frames are judged against the real first frame's disc.
-DETECTOR_VERSION = 4
+# 5: a partly covered disc whose track ends within the tracker's precision (TRACK_PRECISION_M)
+# of the tolerance is undecided: neither cue can tell a millimetre's near miss from a success.
+DETECTOR_VERSION = 5
 COVERED = 0.85  # below this share of the goal disc still visible at the end, it is covered
 TABLE_TOP = 0.10  # tasks/sim/scene.py: the push table's top (m)
 PACKAGE_HALF = (0.04, 0.03, 0.03)  # tasks/sim/scene.py: the package's half sizes (m)
+# How far the package's final track lies from where the simulator has it: the median absolute
+# error, 0.0149 m, over 84 push_closeup episodes (scripted at noise 0.3, 0.8 and 1.0, every cell
+# of bench/vision_panels.py's grid, seeds 30000-30003, none of them a seed any bench evaluates),
+# measured 2026-11-26. Inside the partly-covered band the tracks were within 0.025 m.
+TRACK_PRECISION_M = 0.015
 
 
 @dataclass(frozen=True)
@@ -260,9 +273,16 @@ def judge_push(frames: np.ndarray, camera: Camera, evaluation: Evaluation, packa
     # On rendered frames a track that ends outside the tolerance vetoes a disc only partly
     # covered (a near miss hides some of it too). Generated frames are judged by the disc
     # alone: a world model's package drifts in colour and its track is lost or misplaced.
-    near_miss = reference is None and gap is not None and gap > tol and uncovered >= 0.5
+    # A partly covered disc is a success or a near miss by the track, unless the track ends
+    # within its own precision of the tolerance: then neither cue can tell (undecided).
+    partly = reference is None and gap is not None and COVERED > uncovered >= 0.5
+    near_miss = partly and gap > tol + TRACK_PRECISION_M
     if uncovered >= COVERED:
         return Verdict(False, f"goal marker uncovered at the end ({uncovered:.0%} of it visible); {tracked}", gap)
+    if partly and abs(gap - tol) <= TRACK_PRECISION_M:
+        return Verdict(None, f"undecided: goal marker partly covered at the end ({uncovered:.0%} of it visible) and "
+                             f"{tracked}, within the tracker's precision ({TRACK_PRECISION_M} m) of the tolerance "
+                             f"({tol} m)", gap)
     if near_miss:
         return Verdict(False, f"goal marker partly covered at the end ({uncovered:.0%} of it visible), but "
                               f"{tracked} (tolerance {tol} m)", gap)
