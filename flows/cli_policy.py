@@ -21,6 +21,7 @@ def panels(params: PanelsParams) -> None:
         primary_camera(parent, params.camera)
     except ValueError as exc:
         fail(f"--camera: {exc}")
+    params.check_world(parent, folder, Settings().data_root)
 
     writing()
     try:

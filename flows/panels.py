@@ -132,9 +132,11 @@ def panels(manifest: str, grid: str | None = None, episodes: PanelEpisodes | Non
     """A matched panel of ``manifest`` over ``grid`` (a YAML StressorGrid; default: one
     stressor at a time), ``episodes`` seeds per cell (default: the grid's). ``device``: where
     the world model rolls out (``tasks.device``; it changes no id)."""
-    PanelsParams.of(locals())  # every parameter check, for a deployment as for the CLI
+    checks = PanelsParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root
+    if world_model:  # before anything runs or is written
+        checks.check_world(manifests.load(Path(manifest)), world_model, root, flow=True)
     parent = load_manifest(Path(manifest))
     spec, variants = expand(parent, resolve_grid(parent, grid, episodes))
     cam = primary_camera(parent, camera)

@@ -23,6 +23,19 @@ class PanelsParams(DeviceParams):
     cli_arguments = ("manifest",)
     cli_paths = ("manifest", "grid")
 
+    def check_world(self, scenario, folder: str | None, root, flow: bool = False) -> None:
+        """The world model at ``folder`` against the panel's camera, tokenizer and action layout
+        (``tasks.policy.world_env.world_model_mismatch``): Refused, or in a flow ParamsError."""
+        from tasks.panels.grid import primary_camera
+        from tasks.policy.world_env import world_model_mismatch
+
+        if not folder:
+            return
+        problem = world_model_mismatch(folder, scenario, primary_camera(scenario, self.camera), root)
+        if problem:
+            refused = Refused(f"{{world_model}} {folder}: {problem}")
+            raise ParamsError(str(refused)) if flow else refused
+
 
 class EvaluateParams(DeviceParams):
     manifest: str = Field(description="scenario manifest YAML")

@@ -191,4 +191,10 @@ def test_a_world_model_or_a_policy_that_does_not_fit_the_panel_is_refused_in_one
         with pytest.raises(ParamsError, match=re.escape(said)) as refused:
             evaluate.fn(manifest=manifest, world_model=str(folder), policies=policies, in_world_model=closed)
         assert "\n" not in str(refused.value)
+    # panels --world-model runs the same check
+    said = cases[0][-1]
+    result = runner.invoke(app, ["panels", PUSH, "--world-model", str(side)], terminal_width=400)
+    assert result.exit_code == 2 and said in " ".join(result.output.split()), result.output
+    with pytest.raises(ParamsError, match=re.escape(said)):
+        panels.fn(manifest=PUSH, world_model=str(side))
     assert not (data_root / "lineage.duckdb").exists()
