@@ -10,10 +10,11 @@ outside the tolerance vetoes a partly covered disc (a near miss). A shaking came
 phase correlation, dim light by one gain for the clip. Other targets return an undecided
 verdict (success None) rather than a guess.
 
-Version 5 (undecided within the tracker's precision of the tolerance), on
-bench/vision_panels.py's push panel (7 cells x 8 seeds, a state and a vision policy, 112
-episodes): 89 of 95 decided agree (balanced 0.967; 17 undecided, 8 of them the simulator's 12
-failures, mostly the vision policy's near misses); version 4 decided all 112 and agreed on 103
+Versions 5 and 6 (undecided within the tracker's precision of the tolerance; a covered disc
+pixel is one that changed colour), on bench/vision_panels.py's push panel (7 cells x 8 seeds,
+a state and a vision policy, 112 episodes): version 6 agrees on 91 of 95 decided (balanced
+0.978; 17 undecided, 8 of them among the simulator's 12 failures, mostly the vision policy's
+near misses), version 5 on 89 of 95 (0.967); version 4 decided all 112 and agreed on 103
 (balanced 0.845), three of its errors packages 0.051 m from the goal called successes.
 
 Version 4 (the cover), on push_closeup's held-out panel (manifests/grids/push_heldout.yaml, 8
@@ -47,7 +48,9 @@ from schemas.manifest import Camera, Evaluation
 # not where the colour track ends; generated frames are judged against the real first frame's disc.
 # 5: a partly covered disc whose track ends within the tracker's precision (TRACK_PRECISION_M)
 # of the tolerance is undecided: neither cue can tell a millimetre's near miss from a success.
-DETECTOR_VERSION = 5
+# 6: on rendered frames a disc pixel is visible only if it also keeps its first-frame colour
+# (a package the appearance stressor made green covered the disc unseen).
+DETECTOR_VERSION = 6
 COVERED = 0.85  # below this share of the goal disc still visible at the end, it is covered
 TABLE_TOP = 0.10  # tasks/sim/scene.py: the push table's top (m)
 PACKAGE_HALF = (0.04, 0.03, 0.03)  # tasks/sim/scene.py: the package's half sizes (m)
@@ -56,6 +59,7 @@ PACKAGE_HALF = (0.04, 0.03, 0.03)  # tasks/sim/scene.py: the package's half size
 # of bench/vision_panels.py's grid, seeds 30000-30003, none of them a seed any bench evaluates),
 # measured 2026-11-26. Inside the partly-covered band the tracks were within 0.025 m.
 TRACK_PRECISION_M = 0.015
+SAME_COLOUR = 0.15  # a rendered disc pixel left uncovered keeps its colour (renders repeat exactly)
 
 
 @dataclass(frozen=True)
@@ -157,19 +161,27 @@ def _goal_mask(frame: np.ndarray, camera: Camera, tolerance: float) -> np.ndarra
     return found
 
 
-def _visible(frames: np.ndarray, mask: np.ndarray, last: int = 5) -> tuple[float, float]:
+def _visible(frames: np.ndarray, mask: np.ndarray, last: int = 5, unchanged: bool = False) -> tuple[float, float]:
     """(share of the goal disc's pixels green in frames[0], the largest share still green in
     any of the last ``last`` frames, each moved by its shift from frames[0]). The largest:
     something passing in front of the goal (a forklift) covers it for a few frames only; a
-    package resting on it covers it in all of them."""
+    package resting on it covers it in all of them. ``unchanged`` (rendered frames): a pixel
+    counts as the disc only if it also keeps its first-frame colour (within SAME_COLOUR of its
+    brightest channel), so a package that happens to be green (the appearance stressor
+    recolours it) still covers the disc. Generated frames drift in colour: green alone there."""
     rows, cols = np.nonzero(mask)
     h, w = mask.shape
+    before = frames[0][rows, cols].astype(np.int16)
+    allowed = SAME_COLOUR * before.max(axis=1) + 4
     shares = []
     for frame in frames[-last:]:
         dx, dy = image_shift(frames[0], frame)
         r = np.clip(np.round(rows + dy).astype(int), 0, h - 1)
         c = np.clip(np.round(cols + dx).astype(int), 0, w - 1)
-        shares.append(float(_green(frame)[r, c].mean()))
+        seen = _green(frame)[r, c]
+        if unchanged:
+            seen &= np.abs(frame[r, c].astype(np.int16) - before).max(axis=1) <= allowed
+        shares.append(float(seen.mean()))
     return float(_green(frames[0])[rows, cols].mean()), max(shares)
 
 
@@ -252,7 +264,7 @@ def judge_push(frames: np.ndarray, camera: Camera, evaluation: Evaluation, packa
     goal = _goal_mask(frames[0] if reference is None else reference, camera, tol)
     if goal is None:
         return Verdict(None, "goal marker not found in the first frame")
-    first, last = _visible(frames, goal)  # in the frames' own light, as the disc was found
+    first, last = _visible(frames, goal, unchanged=reference is None)  # in the frames' own light
     frames = _exposed(frames)
     if first < 0.5:  # a tokenizer that cannot draw this light loses the disc in its reconstruction
         return Verdict(None, f"goal marker not drawn in the frames ({first:.0%} of it green in the first)")

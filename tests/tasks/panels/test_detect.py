@@ -124,3 +124,22 @@ def test_a_partly_covered_disc_with_a_track_near_the_tolerance_is_undecided():
     verdict = judge_frames(ep.frames["side"], noisy.cameras[0], noisy.evaluation, ep.object_pose[0, 0, :3])
     assert verdict.success is None and "tracker's precision" in verdict.reason, verdict.reason
     assert abs(verdict.distance_m - noisy.evaluation.goal_tolerance_m) <= TRACK_PRECISION_M
+
+
+def test_a_package_recoloured_green_still_covers_the_disc():
+    """The appearance stressor recolours everything: on push_closeup seed 10322 the package comes
+    out green, and resting on the goal it kept the disc's pixels green, so version 5 read the
+    disc as uncovered (100% visible) and the success as a failure. A rendered disc pixel counts
+    as visible only if it also keeps its first-frame colour."""
+    from schemas.manifest import Appearance
+    from schemas.panel import StressorCell, StressorGrid
+    from tasks.panels.grid import expand
+
+    closeup = load(MANIFESTS / "push_closeup.yaml")
+    cell = StressorCell(name="appearance", stressors=(Appearance(colour_jitter=0.9, texture=True),))
+    _, (variant,) = expand(closeup, StressorGrid(name="g", description="d", cells=(cell,), episodes=1,
+                                                 seed=closeup.seed + 10300))
+    ep = rollout(variant, 10322)
+    assert ep.success
+    verdict = judge_frames(ep.frames["side"], variant.cameras[0], variant.evaluation, ep.object_pose[0, 0, :3])
+    assert verdict.success, verdict.reason
