@@ -15,6 +15,8 @@ class RegisterParams(FlowParams):
 class SimulateParams(FlowParams):
     manifest: str = Field(description="scenario manifest YAML")
     episodes: Episodes = Field(2, description="episodes (seeds seed..seed+N-1)")
+    controls: bool = Field(False, description="also render each camera's depth and segmentation "
+                           "(docs/transfer.md); episodes simulated without them are simulated again")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest",)
 
@@ -33,3 +35,11 @@ class CurateParams(FlowParams):
     config: str | None = Field(None, description="YAML overrides of CurateConfig")
     cli_arguments = ("inputs",)
     cli_paths = ("inputs", "manifest", "config")
+
+
+class ControlsParams(FlowParams):
+    source: str = Field(description="a video, an episode folder, or a folder of videos")
+    out: str | None = Field(None, description="folder for the control files (default: beside each video; an "
+                            "episode's in its controls/ folder)")
+    cli_arguments = ("source",)
+    cli_paths = ("source", "out")

@@ -15,6 +15,14 @@ EPISODE_DIR = EPISODES_OF_MANIFEST + "/episode_{index:06d}"
 EPISODE_VIDEO = EPISODE_DIR + "/{camera}.mp4"
 EPISODE_TABLE = EPISODE_DIR + "/steps.parquet"
 EPISODE_META = EPISODE_DIR + "/meta.json"
+# Controls of a video (tasks/controls, docs/transfer.md): depth and segmentation that MuJoCo
+# renders (npz), edges and blur made of the video (mp4). An episode's sit in its controls/
+# folder, named by camera; any other video's beside it (or under --out), named by its stem.
+CONTROL_SUFFIX = {"depth": "npz", "seg": "npz", "edges": "mp4", "blur": "mp4"}
+CONTROL_FILE = "{name}.{control}.{suffix}"
+CONTROLS_DIR = "controls"
+CAMERA_VIDEO = "{camera}.mp4"  # a camera's video inside an episode folder (EPISODE_VIDEO)
+EPISODE_CONTROL = EPISODE_DIR + "/" + CONTROLS_DIR + "/" + CONTROL_FILE
 
 CORPUS_VIDEO = "corpus/seed_{seed:06d}/raw_{index:04d}.mp4"
 CORPUS_TRUTH = "corpus/seed_{seed:06d}/raw_{index:04d}.truth.json"
@@ -53,6 +61,16 @@ DERIVED_MANIFEST_FILE = "manifests/derived/{manifest_hash:.12}.yaml"
 
 def resolve(root: Path, template: str, **fields) -> Path:
     return Path(root) / template.format(**fields)
+
+
+def control_file(folder: Path, name: str, control: str) -> Path:
+    """``folder/CONTROL_FILE``: control ``control`` of the video (or camera) ``name``."""
+    return resolve(folder, CONTROL_FILE, name=name, control=control, suffix=CONTROL_SUFFIX[control])
+
+
+def episode_control(episode_dir: Path, camera: str, control: str) -> Path:
+    """EPISODE_CONTROL of the episode in ``episode_dir``."""
+    return control_file(Path(episode_dir) / CONTROLS_DIR, camera, control)
 
 
 def escaped(value):

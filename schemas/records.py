@@ -12,6 +12,7 @@ ArtifactKind = Literal[
     "ground_truth",
     "episode",
     "episode_video",
+    "control",
     "clip",
     "shard",
     "checkpoint",

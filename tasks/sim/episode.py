@@ -182,10 +182,16 @@ def jitter_phases(scene: Scene) -> dict[str, np.ndarray]:
             for c in scene.manifest.cameras}
 
 
+FrameHook = Callable[[Scene, MultiCameraRenderer, mujoco.MjData, str, "np.ndarray | None"], None]
+"""(scene, renderer, data, camera, jitter angles or None), called after each RGB frame is rendered
+(tasks.controls.render.Recorder renders depth and segmentation there)."""
+
+
 def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig(),
-            controller: ControllerFactory | None = None) -> Episode:
+            controller: ControllerFactory | None = None, on_frame: FrameHook | None = None) -> Episode:
     """Simulate the manifest's task for horizon_s and render every camera at its own fps.
-    controller: drive the robot with this instead of the scripted controller (a policy)."""
+    controller: drive the robot with this instead of the scripted controller (a policy).
+    on_frame: called after each frame with the state and camera pose it was rendered from."""
     scene = build_scene(manifest, seed, config)
     sim = Simulation(scene, seed, controller=controller)
     m, d = sim.model, sim.data
@@ -212,6 +218,8 @@ def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig
                     angles = jitter_angles(jitter, phases[c.name], j / c.fps) if jitter else None
                     frames[c.name][j] = renderer.render(data, c.name, angles)
                     next_frame[c.name] = j + 1
+                    if on_frame is not None:
+                        on_frame(scene, renderer, data, c.name, angles)
 
         capture(d)
         try:

@@ -88,9 +88,30 @@ class MultiCameraRenderer:
         mujoco.mjr_readPixels(out, None, rect, self._ctx)
         return out[::-1].copy()  # GL rows run bottom-up
 
-    def segment(self, data: mujoco.MjData, name: str) -> np.ndarray:
-        """H x W int32 geom id seen at each pixel of camera `name`, -1 where nothing is."""
-        rect = self._update(data, name, None)
+    def depth(self, data: mujoco.MjData, name: str, angles: np.ndarray | None = None) -> np.ndarray:
+        """H x W float64 depth in metres along camera `name`'s optical axis (as `render` places it,
+        jitter included), 0 where nothing is nearer than the far plane."""
+        rect = self._update(data, name, angles)
+        mujoco.mjr_render(rect, self._scene, self._ctx)
+        raw = np.empty((rect.height, rect.width), np.float32)
+        mapping = self._ctx.readDepthMap
+        self._ctx.readDepthMap = mujoco.mjtDepthMap.mjDEPTH_ZEROFAR  # reversed z: precision where it is near
+        try:
+            mujoco.mjr_readPixels(None, raw, rect, self._ctx)
+        finally:
+            self._ctx.readDepthMap = mapping
+        extent = self._model.stat.extent
+        near, far = self._model.vis.map.znear * extent, self._model.vis.map.zfar * extent
+        raw = raw[::-1].astype(np.float64)
+        # Perspective depth buffer, zero at the far plane (MuJoCo's renderer_test.py): d = n (f - z) / (z (f - n)).
+        metres = near * far / (near + raw * (far - near))
+        metres[raw <= 0] = 0.0
+        return metres
+
+    def segment(self, data: mujoco.MjData, name: str, angles: np.ndarray | None = None) -> np.ndarray:
+        """H x W int32 geom id seen at each pixel of camera `name` (rotated as `render` does),
+        -1 where nothing is."""
+        rect = self._update(data, name, angles)
         flags = self._scene.flags
         flags[mujoco.mjtRndFlag.mjRND_SEGMENT] = True
         flags[mujoco.mjtRndFlag.mjRND_IDCOLOR] = True

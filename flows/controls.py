@@ -1,0 +1,47 @@
+"""controls: edge and blur controls (tasks/controls/video.py) of a video, an episode's camera
+videos or a folder of videos, each recorded with a `control_of` edge from its video."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from prefect import flow, task
+
+from flows.params_data import ControlsParams
+from flows.recording import recorded_run
+from flows.report import publish
+from schemas import paths
+from schemas.hashing import sha256_file, stable_id
+from schemas.settings import Settings
+from tasks.controls import files, sources
+from tasks.controls.video import CONTROLS_VERSION, VIDEO_CONTROLS, write_video_controls
+
+make_controls = task(write_video_controls, name="video-controls", retries=1)
+
+
+@flow(name="controls", log_prints=True)
+def controls(source: str, out: str | None = None) -> dict:
+    """Edges and blur of every video ``source`` names, written beside it (or under ``out``);
+    a video whose controls are there from an earlier run is skipped."""
+    ControlsParams.of(locals())  # every parameter check, for a deployment as for the CLI
+    settings = Settings()
+    found = sources.find_sources(Path(source), Path(out) if out else None)
+    written, new = [], 0
+    with recorded_run("controls", settings, params={"source": source, "out": out}) as run:
+        for item in found:
+            sha = sha256_file(str(item.video))
+            outputs = [paths.control_file(item.folder, item.name, c) for c in VIDEO_CONTROLS]
+            key = stable_id("controls", sha, str(CONTROLS_VERSION), *map(str, outputs))
+            stage = run.stage("controls", key, outputs=outputs, manifest_hash=item.manifest_hash)
+            if stage.done:
+                continue
+            made = make_controls(item.video, item.folder, item.name)
+            stage.finish(1, len(made), files.source_lineage(item, sha, made, stage.id, settings.data_root),
+                         attrs={"video": paths.escaped(str(item.video))})
+            written.extend(made.values())
+            new += 1
+        summary = f"{len(found)} videos: {new} given edge and blur controls, {len(found) - new} had them already"
+        publish("controls", summary, "\n".join(f"- `{paths.escaped(str(p))}`" for p in written),
+                "edge and blur controls written")
+        print(summary)
+        return {"videos": len(found), "new": new, "written": [str(p) for p in written]}
