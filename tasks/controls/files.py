@@ -20,6 +20,7 @@ from schemas import paths
 from schemas.hashing import sha256_file, stable_id
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, raw_video_id
 from tasks.controls.sources import Source
+from tasks.integrity import uri_of
 
 if TYPE_CHECKING:  # the render module loads MuJoCo; edges and blur of a clip need none of it
     from tasks.controls.render import Rendered
@@ -70,9 +71,7 @@ def control_lineage(video_id: str, controls: dict[str, Path], stage_run_id: str,
     for control, path in sorted(controls.items()):
         sha = sha256_file(str(path))
         control_id = stable_id("control", video_id, control, sha)
-        uri = str(path)
-        if root is not None and Path(path).resolve().is_relative_to(Path(root).resolve()):
-            uri = str(Path(path).resolve().relative_to(Path(root).resolve()))  # as the data root's other files
+        uri = uri_of(path, root) if root is not None else str(path)
         batch.artifacts.append(ArtifactRecord(
             artifact_id=control_id, kind="control", uri=paths.escaped(uri), sha256=sha, bytes=Path(path).stat().st_size,
             manifest_hash=manifest_hash, stage_run_id=stage_run_id, attrs={"control": control, **(attrs or {})}))
@@ -99,7 +98,8 @@ def source_lineage(source: Source, sha256: str, controls: dict[str, Path], stage
     batch = LineageBatch()
     if source.camera is None:
         batch.artifacts.append(ArtifactRecord(
-            artifact_id=raw_video_id(sha256), kind="raw_video", uri=paths.escaped(str(source.video)), sha256=sha256,
+            artifact_id=raw_video_id(sha256), kind="raw_video",
+            uri=paths.escaped(uri_of(source.video, root) if root is not None else str(source.video)), sha256=sha256,
             bytes=source.video.stat().st_size, stage_run_id=stage_run_id))
     attrs = {"camera": source.camera} if source.camera else {}
     return batch.extend(control_lineage(raw_video_id(sha256), controls, stage_run_id, source.manifest_hash, root,

@@ -52,6 +52,8 @@ def test_simulate_controls_then_edges_and_blur_all_in_lineage(prefect_harness, d
     assert [r[1] for r in chain] == ["control", "episode_video", "episode", "manifest"]
     again = runner.invoke(app, ["controls", str(episode)])
     assert again.exit_code == 0 and "0 given controls" in again.output
+    verified = runner.invoke(app, ["verify", "--format", "json"])
+    assert verified.exit_code == 0, verified.output  # every control file has the bytes lineage holds
 
 
 def test_controls_of_a_clip_under_out_and_refusals(prefect_harness, data_root, tmp_path):
