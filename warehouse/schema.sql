@@ -89,7 +89,7 @@ CREATE TABLE IF NOT EXISTS artifacts (
 );
 COMMENT ON TABLE artifacts IS 'One row per file written, or per span judged and not written. Ids are hashes of what they stand for';
 COMMENT ON COLUMN artifacts.artifact_id IS 'Deterministic id of the artifact (a manifest''s is its hash)';
-COMMENT ON COLUMN artifacts.kind IS 'manifest, raw_video, ground_truth, episode, episode_video, clip, shard, checkpoint, token_shard, panel, evaluation, report, ...';
+COMMENT ON COLUMN artifacts.kind IS 'manifest, raw_video, ground_truth, episode, episode_video, control, clip, shard, checkpoint, token_shard, panel, evaluation, report, ...';
 COMMENT ON COLUMN artifacts.uri IS 'Path of the file relative to the data root, NULL for a span judged but never written';
 COMMENT ON COLUMN artifacts.sha256 IS 'sha256 of the file''s bytes when it was recorded';
 COMMENT ON COLUMN artifacts.bytes IS 'Size of the file in bytes';
