@@ -66,7 +66,7 @@ def simulate_variants(run: RunContext, spec: PanelSpec, variants: list[ScenarioM
                 todo[(pv.cell, index)] = (stage, simulate_episode.submit(variant, pv.manifest_hash, index, root))
     with progress(len(todo), f"simulate panel {spec.name}") as bar:
         for (cell, index), (stage, future) in todo.items():
-            written, success, reason = future.result()
+            written, success, reason, _ = future.result()
             bar.advance()
             stage.finish(1, 1, files.episode_lineage(written, stage.manifest_hash, stage.id, root),
                          attrs={"index": index, "success": success, "reason": reason, "panel_cell": cell})
