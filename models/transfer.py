@@ -1,0 +1,197 @@
+"""Control-conditioned video generator for transfer, after Cosmos-Transfer (NVIDIA, arXiv:2503.14492), sized for a CPU.
+
+A small U-Net applied frame by frame: frame t is made from the controls of frame t (edges,
+blur, depth, segmentation), the generator's own frame t - 1 (zeros for the first frame) and a
+prompt from a fixed vocabulary of looks, so frame t depends on controls and outputs up to t
+only. Each control's input channels are multiplied by its weight, a scalar per clip or a map
+per pixel and frame, as Cosmos-Transfer weights its control branches (a weight of 0 removes
+that control exactly); the prompt scales and shifts every normalised feature map (FiLM).
+
+Layouts: controls ``B x control_channels x T x H x W`` float, stacked in ``config.controls``
+order (edges 1 channel in {-1, 1}, blur 3 in [-1, 1], depth 1 in [-1, 1], segmentation
+``seg_classes`` one-hot in {0, 1}); weights ``B x len(controls)`` or ``B x len(controls) x T
+x H x W`` (any broadcastable shape of those), >= 0; prompts ``B`` int64 indices into
+``PROMPTS``; frames ``B x 3 x T x H x W`` float in [-1, 1], H and W multiples of
+``2 ** (len(channels) - 1)``.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import torch
+from pydantic import BaseModel, ConfigDict, Field, model_validator
+from torch import nn
+
+TRANSFER_SCHEMA_VERSION = 1
+
+# The looks the simulator renders as stressors (tasks/transfer/pairs.py LOOKS maps each to
+# one): training pairs exist for exactly these. "warm light" is not among them: the scene
+# scales its lights' intensity only, it cannot tint them.
+PROMPTS: tuple[str, ...] = ("nominal", "dim", "very dim", "colour shift", "textures")
+CONTROL_KINDS = ("edges", "blur", "depth", "segmentation")
+ControlKind = Literal["edges", "blur", "depth", "segmentation"]
+
+
+class TransferConfig(BaseModel):
+    """Architecture of one transfer model; its JSON is saved beside every checkpoint."""
+
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    schema_version: int = TRANSFER_SCHEMA_VERSION
+    name: str = "custom"
+    controls: tuple[ControlKind, ...] = Field(CONTROL_KINDS, min_length=1, description="input controls, in stacking order")
+    seg_classes: int = Field(6, ge=1, description="one-hot segmentation channels")
+    prompts: tuple[str, ...] = Field(PROMPTS, min_length=1)
+    prompt_dim: int = Field(32, ge=1)
+    channels: tuple[int, ...] = Field((32, 64, 128), min_length=1, description="width per resolution level, finest first")
+    groups: int = Field(8, ge=1, description="GroupNorm groups (every width must divide by it)")
+
+    @model_validator(mode="after")
+    def _consistent(self) -> "TransferConfig":
+        if len(set(self.controls)) != len(self.controls):
+            raise ValueError(f"controls repeat: {self.controls}")
+        if any(w % self.groups for w in self.channels):
+            raise ValueError(f"every width in {self.channels} must divide by groups={self.groups}")
+        return self
+
+    def channels_of(self, control: str) -> int:
+        return {"edges": 1, "blur": 3, "depth": 1, "segmentation": self.seg_classes}[control]
+
+    @property
+    def control_channels(self) -> int:
+        return sum(self.channels_of(c) for c in self.controls)
+
+    @property
+    def multiple(self) -> int:
+        """H and W must be multiples of this."""
+        return 2 ** (len(self.channels) - 1)
+
+    def prompt_index(self, prompt: str) -> int:
+        try:
+            return self.prompts.index(prompt)
+        except ValueError:
+            raise ValueError(f"unknown prompt {prompt!r}; known: {', '.join(self.prompts)}") from None
+
+
+class FiLMBlock(nn.Module):
+    """Residual block: (GroupNorm, FiLM by the prompt, SiLU, 3x3 conv) twice, plus a skip."""
+
+    def __init__(self, cin: int, cout: int, prompt_dim: int, groups: int):
+        super().__init__()
+        self.norm1 = nn.GroupNorm(min(groups, cin), cin, affine=False)
+        self.conv1 = nn.Conv2d(cin, cout, 3, padding=1)
+        self.norm2 = nn.GroupNorm(groups, cout, affine=False)
+        self.conv2 = nn.Conv2d(cout, cout, 3, padding=1)
+        self.film = nn.Linear(prompt_dim, 2 * (cin + cout))
+        self.skip = nn.Conv2d(cin, cout, 1) if cin != cout else nn.Identity()
+        self.split = (cin, cin, cout, cout)
+
+    def forward(self, x: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
+        f = self.film(p)[..., None, None]
+        s1, b1, s2, b2 = f.split(self.split, 1)
+        h = self.conv1(nn.functional.silu(self.norm1(x) * (1 + s1) + b1))
+        h = self.conv2(nn.functional.silu(self.norm2(h) * (1 + s2) + b2))
+        return self.skip(x) + h
+
+
+class TransferNet(nn.Module):
+    """U-Net over one frame at a time; ``forward`` makes a clip causally, ``step`` one frame."""
+
+    def __init__(self, config: TransferConfig):
+        super().__init__()
+        self.config = config
+        c = config
+        self.prompt = nn.Embedding(len(c.prompts), c.prompt_dim)
+        self.conv_in = nn.Conv2d(c.control_channels + 3, c.channels[0], 3, padding=1)
+        self.down = nn.ModuleList()
+        self.pool = nn.ModuleList()
+        for i, width in enumerate(c.channels):
+            self.down.append(FiLMBlock(width, width, c.prompt_dim, c.groups))
+            if i + 1 < len(c.channels):
+                self.pool.append(nn.Conv2d(width, c.channels[i + 1], 3, stride=2, padding=1))
+        self.mid = FiLMBlock(c.channels[-1], c.channels[-1], c.prompt_dim, c.groups)
+        self.lift = nn.ModuleList()
+        self.up = nn.ModuleList()
+        for i in reversed(range(len(c.channels) - 1)):
+            self.lift.append(nn.Conv2d(c.channels[i + 1], c.channels[i], 3, padding=1))
+            self.up.append(FiLMBlock(2 * c.channels[i], c.channels[i], c.prompt_dim, c.groups))
+        self.norm_out = nn.GroupNorm(c.groups, c.channels[0])
+        self.conv_out = nn.Conv2d(c.channels[0], 3, 3, padding=1)
+        # Per-channel index of the control it belongs to, to spread control weights over channels.
+        owner = [i for i, name in enumerate(c.controls) for _ in range(c.channels_of(name))]
+        self.register_buffer("_owner", torch.tensor(owner, dtype=torch.long), persistent=False)
+
+    def weighted(self, controls: torch.Tensor, weights: torch.Tensor | None) -> torch.Tensor:
+        """``controls`` (``B x C x [T x] H x W``) with each control's channels times its weight."""
+        if weights is None:
+            return controls
+        n = len(self.config.controls)
+        if weights.dim() < 2 or weights.shape[1] != n:
+            raise ValueError(f"weights need {n} entries along dim 1 (one per control), got shape {tuple(weights.shape)}")
+        w = weights.to(controls).index_select(1, self._owner)
+        w = w.reshape(*w.shape, *([1] * (controls.dim() - w.dim())))
+        return controls * w
+
+    def step(self, controls: torch.Tensor, previous: torch.Tensor, prompts: torch.Tensor,
+             weights: torch.Tensor | None = None) -> torch.Tensor:
+        """One frame: controls ``B x C x H x W``, previous frame ``B x 3 x H x W`` in [-1, 1],
+        prompts ``B``, weights ``B x n`` or ``B x n x H x W`` -> frame ``B x 3 x H x W`` in [-1, 1]."""
+        m = self.config.multiple
+        if controls.shape[-1] % m or controls.shape[-2] % m:
+            raise ValueError(f"frame size {tuple(controls.shape[-2:])}: H and W must be multiples of {m}")
+        p = self.prompt(prompts)
+        h = self.conv_in(torch.cat([self.weighted(controls, weights), previous], 1))
+        skips = []
+        for i, block in enumerate(self.down):
+            h = block(h, p)
+            if i < len(self.pool):
+                skips.append(h)
+                h = self.pool[i](h)
+        h = self.mid(h, p)
+        for lift, block in zip(self.lift, self.up):
+            h = lift(nn.functional.interpolate(h, scale_factor=2.0, mode="nearest"))
+            h = block(torch.cat([h, skips.pop()], 1), p)
+        return torch.tanh(self.conv_out(nn.functional.silu(self.norm_out(h))))
+
+    def forward(self, controls: torch.Tensor, prompts: torch.Tensor, weights: torch.Tensor | None = None,
+                previous: torch.Tensor | None = None) -> torch.Tensor:
+        """A clip: controls ``B x C x T x H x W`` -> frames ``B x 3 x T x H x W`` in [-1, 1].
+
+        With ``previous`` (``B x 3 x T x H x W``: frame t is given frame t - 1 of it, zeros for
+        the first) all frames are made at once (teacher forcing); without it frame by frame,
+        each from the generator's own previous frame, starting from zeros."""
+        b, _, t, hh, ww = controls.shape
+        if weights is not None and weights.dim() == 5:
+            per_frame = weights.movedim(2, 1).reshape(b * t, *weights.shape[1:2], *weights.shape[3:])
+        elif weights is not None:
+            per_frame = weights.repeat_interleave(t, 0)
+        else:
+            per_frame = None
+        if previous is not None:
+            shifted = torch.cat([torch.zeros_like(previous[:, :, :1]), previous[:, :, :-1]], 2)
+            flat = lambda x: x.movedim(2, 1).reshape(b * t, x.shape[1], hh, ww)  # noqa: E731
+            out = self.step(flat(controls), flat(shifted), prompts.repeat_interleave(t), per_frame)
+            return out.reshape(b, t, 3, hh, ww).movedim(1, 2)
+        frames, prev = [], controls.new_zeros(b, 3, hh, ww)
+        for i in range(t):
+            w = None if per_frame is None else per_frame.reshape(b, t, *per_frame.shape[1:])[:, i]
+            prev = self.step(controls[:, :, i], prev, prompts, w)
+            frames.append(prev)
+        return torch.stack(frames, 2)
+
+
+PRESETS: dict[str, TransferConfig] = {
+    # Tests: a forward pass on 16 x 16 in milliseconds.
+    "tiny": TransferConfig(name="tiny", channels=(8, 16), prompt_dim=8, groups=4),
+    # This machine's smoke runs at 64 x 64 (about 0.29M parameters: 26 ms a frame forward and
+    # backward on one loaded core; (32, 64, 128), 1.1M, took 4x that).
+    "small": TransferConfig(name="small", channels=(16, 32, 64), prompt_dim=32, groups=8),
+}
+
+
+def preset(name: str) -> TransferConfig:
+    try:
+        return PRESETS[name]
+    except KeyError:
+        raise ValueError(f"unknown transfer preset {name!r}; known: {', '.join(sorted(PRESETS))}") from None

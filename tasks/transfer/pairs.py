@@ -1,0 +1,132 @@
+"""Paired training clips for the transfer model, free from the simulator.
+
+The same manifest and seed rendered in its source look and under an appearance stressor has
+the same geometry and motion: appearance (colour jitter, textures) draws from its own random
+stream and dim light only scales the lights, so layout, controller and physics are untouched
+(``tests/tasks/transfer/test_pairs.py`` checks the poses are identical). So the source
+rollout's controls plus a prompt naming the look, against the stressed rollout's frames, is a
+supervised pair. Stressors that change physics or the picture's geometry (distractors,
+forklift, occluder, camera jitter) are kept as the parent has them in both rollouts, never
+used as a look.
+
+Controls are made at ``size`` x ``size`` from the source rollout: edges and blur with
+`tasks.controls.video.frame_controls` (its Canny thresholds and blur), depth and segmentation
+from `tasks.controls.render.Recorder`, resized (nearest for ids).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from schemas.manifest import Appearance, DimLight, ScenarioManifest
+from schemas.panel import StressorCell, StressorGrid
+from tasks.controls.render import Recorder
+from tasks.controls.video import frame_controls
+from tasks.panels.grid import primary_camera, variant_manifest
+from tasks.sim.episode import rollout
+
+LOOK_KINDS = ("appearance", "dim_light")
+# Prompt -> the stressors that render it (models.transfer.PROMPTS lists the same names).
+# "nominal" is the source look itself: no appearance or dim-light stressor.
+LOOKS: dict[str, tuple] = {
+    "nominal": (),
+    "dim": (DimLight(lux=200),),
+    "very dim": (DimLight(lux=80),),  # the panels' dim cell
+    "colour shift": (Appearance(colour_jitter=0.3, texture=False),),
+    "textures": (Appearance(colour_jitter=0.1, texture=True),),
+}
+# Segmentation one-hot classes: legend names grouped into a fixed set, so scenes with
+# different legends share channels. Anything not listed is "other".
+SEG_GROUPS: tuple[tuple[str, ...], ...] = (
+    ("background",), ("package",), ("robot",), ("table", "floor", "bin"), ("goal",),
+)
+SEG_CLASSES = len(SEG_GROUPS) + 1
+
+
+@dataclass(frozen=True)
+class PairClip:
+    """One camera of one seed in one look. Source controls: ``edges`` F x H x W uint8 {0, 255},
+    ``blur`` F x H x W x 3 uint8, ``depth_mm`` F x H x W uint16, ``seg`` F x H x W uint8 class
+    in [0, SEG_CLASSES); target ``frames`` F x H x W x 3 uint8 in the look ``prompt``."""
+
+    prompt: str
+    seed: int
+    camera: str
+    edges: np.ndarray
+    blur: np.ndarray
+    depth_mm: np.ndarray
+    seg: np.ndarray
+    frames: np.ndarray
+    source_pose: np.ndarray
+    target_pose: np.ndarray
+
+
+def source_manifest(parent: ScenarioManifest) -> ScenarioManifest:
+    """The parent without its look stressors: the rollout the controls come from."""
+    grid = StressorGrid(name="transfer", cells=(StressorCell(name="source", drop=LOOK_KINDS),))
+    return variant_manifest(parent, grid, grid.cells[0])
+
+
+def look_manifest(parent: ScenarioManifest, prompt: str) -> ScenarioManifest:
+    """The source manifest rendered in the look ``prompt``."""
+    if prompt not in LOOKS:
+        raise ValueError(f"unknown look {prompt!r}; known: {', '.join(LOOKS)}")
+    name = prompt.replace(" ", "-")
+    stressors = LOOKS[prompt]
+    drop = tuple(k for k in LOOK_KINDS if k not in {s.kind for s in stressors})  # a set stressor replaces its kind
+    grid = StressorGrid(name="transfer", cells=(StressorCell(name=name, drop=drop, stressors=stressors),))
+    return variant_manifest(parent, grid, grid.cells[0])
+
+
+def seg_classes(ids: np.ndarray, legend: tuple[str, ...]) -> np.ndarray:
+    """Legend ids -> SEG_GROUPS classes (the last class for names in no group)."""
+    table = np.full(len(legend), len(SEG_GROUPS), np.uint8)
+    for i, name in enumerate(legend):
+        for k, group in enumerate(SEG_GROUPS):
+            if name in group:
+                table[i] = k
+    return table[ids]
+
+
+def _resize(stack: np.ndarray, size: int, nearest: bool = False) -> np.ndarray:
+    if stack.shape[1:3] == (size, size):
+        return stack
+    how = cv2.INTER_NEAREST if nearest else cv2.INTER_AREA
+    return np.stack([cv2.resize(f, (size, size), interpolation=how) for f in stack])
+
+
+def depth_signal(depth_mm: np.ndarray) -> np.ndarray:
+    """uint16 millimetres ``... x H x W`` -> float32 in [-1, 1]: near -1, the clip's farthest
+    depth (and nothing, 0) 1. One scale per clip, so depth does not flicker."""
+    d = depth_mm.astype(np.float32)
+    far = float(d.max()) or 1.0
+    d = np.where(d == 0, far, d)
+    return d / far * 2 - 1
+
+
+def make_pairs(parent: ScenarioManifest, seeds: list[int] | tuple[int, ...], prompts: tuple[str, ...] = tuple(LOOKS),
+               size: int = 64, camera: str | None = None, horizon_s: float | None = None) -> list[PairClip]:
+    """One PairClip per seed and prompt, for ``camera`` (default: the primary camera).
+    ``horizon_s`` shortens the episodes (tests)."""
+    if horizon_s is not None:
+        parent = parent.model_copy(update={"horizon_s": horizon_s})
+    camera = primary_camera(parent, camera)
+    source = source_manifest(parent)
+    pairs: list[PairClip] = []
+    for seed in seeds:
+        recorder = Recorder()
+        nominal = rollout(source, seed, on_frame=recorder)
+        rendered = recorder.rendered()
+        frames = _resize(nominal.frames[camera], size)
+        made = frame_controls(frames)
+        depth = _resize(rendered.depth_mm[camera], size, nearest=True)
+        seg = _resize(seg_classes(rendered.ids[camera], rendered.legend), size, nearest=True)
+        for prompt in prompts:
+            episode = nominal if prompt == "nominal" else rollout(look_manifest(parent, prompt), seed)
+            pairs.append(PairClip(prompt=prompt, seed=seed, camera=camera, edges=made["edges"], blur=made["blur"],
+                                  depth_mm=depth, seg=seg, frames=_resize(episode.frames[camera], size),
+                                  source_pose=nominal.object_pose, target_pose=episode.object_pose))
+    return pairs

@@ -1,0 +1,187 @@
+"""Train a transfer model on simulator pairs: random windows, L1 loss, AdamW, cosine schedule.
+
+Each step draws windows of ``clip_frames`` frames from random pairs (`tasks.transfer.pairs`)
+and makes all their frames at once, each from the previous target frame (teacher forcing).
+With probability ``self_feed`` a window's previous frames are instead the model's own outputs
+(made without gradient from the teacher-forced pass), so it learns to continue from frames it
+made, as it must when it generates a clip. Each control is dropped (weight 0) with
+probability ``control_dropout`` per window, so any subset of controls, as a user's weights
+choose, is a input the model has seen.
+
+Pure: pairs in, a trained model and its history out; the checkpoint helpers write and read
+``model.safetensors`` + ``config.json`` (`tasks.checkpoint_files`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from models.transfer import TransferConfig, TransferNet, preset
+from tasks.checkpoint_files import load_weights, model_config, read_config, write_checkpoint
+from tasks.device import Runtime, autocast, prepare
+from tasks.tokenize.train import lr_at, psnr
+from tasks.transfer.pairs import PairClip, depth_signal
+
+CHECKPOINT_KEY = "transfer"
+
+
+class TrainConfig(BaseModel):
+    model_config = ConfigDict(frozen=True, extra="forbid")
+
+    preset: str = "tiny"
+    steps: int = Field(200, ge=1)
+    seconds: float | None = Field(None, gt=0, description="training-time budget; stops at steps or this")
+    batch_size: int = Field(8, ge=1)
+    clip_frames: int = Field(4, ge=1)
+    self_feed: float = Field(0.25, ge=0, le=1, description="chance a window's previous frames are the model's own")
+    control_dropout: float = Field(0.2, ge=0, le=1, description="chance each control gets weight 0 in a window")
+    lr: float = Field(2e-3, gt=0)
+    warmup_steps: int = Field(20, ge=0)
+    min_lr_ratio: float = Field(0.05, ge=0, le=1)
+    seed: int = 0
+    threads: int = Field(2, ge=1)
+    log_every: int = Field(10, ge=1)
+
+
+def pair_tensors(pair: PairClip, config: TransferConfig) -> tuple[torch.Tensor, torch.Tensor]:
+    """(controls ``C x F x H x W`` stacked in ``config.controls`` order, target ``3 x F x H x W``), float."""
+    parts = {
+        "edges": torch.from_numpy(pair.edges).float().div(127.5).sub(1)[None],
+        "blur": torch.from_numpy(pair.blur).float().div(127.5).sub(1).movedim(-1, 0),
+        "depth": torch.from_numpy(depth_signal(pair.depth_mm))[None],
+        "segmentation": torch.nn.functional.one_hot(torch.from_numpy(pair.seg).long(), config.seg_classes)
+        .float().movedim(-1, 0),
+    }
+    controls = torch.cat([parts[name] for name in config.controls], 0)
+    target = torch.from_numpy(pair.frames).float().div(127.5).sub(1).movedim(-1, 0)
+    return controls, target
+
+
+class PairSet:
+    """Pairs as tensors once, and batches of random windows drawn from them."""
+
+    def __init__(self, pairs: Sequence[PairClip], config: TransferConfig):
+        if not pairs:
+            raise ValueError("no pairs to train on")
+        self.items = [(*pair_tensors(p, config), config.prompt_index(p.prompt)) for p in pairs]
+        self.controls = len(config.controls)
+
+    def sample(self, frames: int, batch: int, gen: torch.Generator, dropout: float = 0.0):
+        """(controls ``B x C x T x H x W``, target ``B x 3 x T x H x W``, prompts ``B``, weights ``B x n``)."""
+        usable = [i for i in self.items if i[0].shape[1] >= frames]
+        if not usable:
+            raise ValueError(f"no pair has {frames} frames")
+        cs, ts, ps = [], [], []
+        for _ in range(batch):
+            controls, target, prompt = usable[int(torch.randint(len(usable), (1,), generator=gen))]
+            t0 = int(torch.randint(controls.shape[1] - frames + 1, (1,), generator=gen))
+            cs.append(controls[:, t0:t0 + frames])
+            ts.append(target[:, t0:t0 + frames])
+            ps.append(prompt)
+        weights = (torch.rand(batch, self.controls, generator=gen) >= dropout).float()
+        return torch.stack(cs), torch.stack(ts), torch.tensor(ps), weights
+
+
+def train_transfer(model: TransferNet, pairs: Sequence[PairClip], config: TrainConfig,
+                   on_log: Callable[[dict], None] | None = None, runtime: Runtime | None = None) -> list[dict]:
+    """Train in place; returns one record per ``log_every`` steps: step, seconds, loss (L1 in
+    [-1, 1] units), psnr (dB, teacher-forced and self-fed windows together), lr.
+
+    Same seed, pairs and config: same weights (single-threaded). ``runtime`` says where
+    (``tasks.device``): batches are drawn on the CPU and moved there; the model is left on it."""
+    torch.set_num_threads(config.threads)
+    runtime = runtime or Runtime(device="cpu")
+    data = PairSet(pairs, model.config)
+    call, device = prepare(model, runtime)
+    gen = torch.Generator().manual_seed(config.seed)
+    opt = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=0.0, betas=(0.9, 0.99))
+    history: list[dict] = []
+    trained, losses, psnrs = 0.0, [], []
+
+    def log(step: int) -> None:
+        nonlocal losses, psnrs
+        record = {"step": step, "seconds": round(trained, 2), "loss": float(np.mean(losses)),
+                  "psnr": float(np.mean(psnrs)), "lr": opt.param_groups[0]["lr"]}
+        losses, psnrs = [], []
+        history.append(record)
+        if on_log:
+            model.eval()
+            on_log(record)
+            model.train()
+
+    model.train()
+    step = 0
+    for step in range(config.steps):
+        if config.seconds and trained >= config.seconds:
+            break
+        started = time.perf_counter()
+        progress = max(step / config.steps, trained / config.seconds if config.seconds else 0.0)
+        for group in opt.param_groups:
+            group["lr"] = lr_at(config, step, progress)
+        controls, target, prompts, weights = (x.to(device) for x in data.sample(
+            config.clip_frames, config.batch_size, gen, config.control_dropout))
+        own = torch.rand(config.batch_size, generator=gen) < config.self_feed
+        previous = target
+        with autocast(runtime, device):
+            if own.any():
+                with torch.no_grad():
+                    made = call(controls, prompts, weights, previous=target).float()
+                previous = torch.where(own.to(device)[:, None, None, None, None], made, target)
+            out = call(controls, prompts, weights, previous=previous)
+        loss = (out.float() - target).abs().mean()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+        losses.append(loss.item())
+        psnrs.append(psnr(target, out.detach().float()).mean().item())
+        trained += time.perf_counter() - started
+        if (step + 1) % config.log_every == 0:
+            log(step + 1)
+    else:
+        step = config.steps
+    if losses:
+        log(step)
+    model.eval()
+    return history
+
+
+@torch.no_grad()
+def evaluate(model: TransferNet, pairs: Sequence[PairClip], frames: int | None = None) -> dict[str, float]:
+    """Mean PSNR (dB) per prompt of clips made frame by frame from the model's own previous
+    frames (as generation runs), against the stressed rollouts' frames; the first ``frames``."""
+    model.eval()
+    device = next(model.parameters()).device
+    by_prompt: dict[str, list[float]] = {}
+    for pair in pairs:
+        controls, target = pair_tensors(pair, model.config)
+        if frames:
+            controls, target = controls[:, :frames], target[:, :frames]
+        prompt = torch.tensor([model.config.prompt_index(pair.prompt)], device=device)
+        out = model(controls[None].to(device), prompt).cpu()
+        by_prompt.setdefault(pair.prompt, []).append(psnr(target[None], out).item())
+    return {k: float(np.mean(v)) for k, v in by_prompt.items()}
+
+
+def save_transfer(model: TransferNet, folder: Path, train: TrainConfig | None = None,
+                  history: list[dict] | None = None) -> tuple[Path, Path]:
+    extra = {"train": train.model_dump(mode="json") if train else None, "history": history or []}
+    return write_checkpoint(model, folder, CHECKPOINT_KEY, extra)
+
+
+def load_transfer(folder: Path) -> TransferNet:
+    """The model saved in ``folder``, on the CPU in eval mode; CheckpointError in one line otherwise."""
+    body = read_config(folder, CHECKPOINT_KEY, "transfer checkpoint")
+    return load_weights(TransferNet(model_config(TransferConfig, body, CHECKPOINT_KEY, folder)), folder)
+
+
+def new_model(config: TrainConfig) -> TransferNet:
+    """The preset's model, initialised from the run's seed."""
+    torch.manual_seed(config.seed)
+    return TransferNet(preset(config.preset))
