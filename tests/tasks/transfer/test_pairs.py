@@ -4,7 +4,9 @@ rendered in another look, with identical geometry and motion."""
 import numpy as np
 import pytest
 
+from tasks.controls.render import Recorder
 from tasks.controls.video import frame_controls
+from tasks.sim.episode import rollout
 from tasks.transfer.pairs import LOOKS, SEG_CLASSES, SEG_GROUPS, look_manifest, make_pairs, seg_classes, source_manifest
 from tasks.manifests import load as load_manifest
 
@@ -47,6 +49,17 @@ def test_the_package_segment_lines_up_with_the_colour_shifted_package(pairs):
     assert package.any()
     diff = np.abs(shifted.frames.astype(int) - source.frames.astype(int)).sum(-1)
     assert diff[package].mean() > 10
+
+
+def test_a_look_renders_the_same_segmentation_as_the_source():
+    """The strongest form of "same geometry": every pixel's object is the same in both looks."""
+    parent = load_manifest(MANIFESTS / "push_closeup.yaml").model_copy(update={"horizon_s": 0.5})
+    ids = []
+    for manifest in (source_manifest(parent), look_manifest(parent, "textures")):
+        recorder = Recorder()
+        rollout(manifest, 21, on_frame=recorder)
+        ids.append(recorder.rendered().ids["side"])
+    assert np.array_equal(*ids)
 
 
 def test_controls_are_the_controls_module_s(pairs):

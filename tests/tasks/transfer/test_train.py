@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from tasks.checkpoint_files import CheckpointError
-from tasks.transfer.pairs import PairClip
+from models.transfer import PROMPTS, preset
+from tasks.transfer.pairs import LOOKS, SEG_CLASSES, PairClip
 from tasks.transfer.train import PairSet, TrainConfig, evaluate, load_transfer, new_model, save_transfer, train_transfer
 
 TINT = {"nominal": (1.0, 1.0, 1.0), "dim": (0.3, 0.3, 0.3), "colour shift": (1.0, 0.5, 0.2)}
@@ -25,6 +26,11 @@ def _pairs(side=16, frames=6):
                                 seg=np.zeros((frames, side, side), np.uint8), frames=target,
                                 source_pose=np.zeros((1, 1, 7)), target_pose=np.zeros((1, 1, 7))))
     return out
+
+
+def test_the_model_s_vocabulary_is_the_looks_the_simulator_renders():
+    assert tuple(LOOKS) == PROMPTS
+    assert all(preset(name).seg_classes == SEG_CLASSES for name in ("tiny", "small"))
 
 
 CONFIG = TrainConfig(preset="tiny", steps=60, batch_size=4, clip_frames=3, lr=5e-3, warmup_steps=5, threads=1,
