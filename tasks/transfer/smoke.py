@@ -31,7 +31,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--batch", type=int, default=8)
     parser.add_argument("--frames", type=int, default=3, help="frames per training window")
     parser.add_argument("--eval-frames", type=int, default=8, help="frames of each clip generated for the PSNR")
-    parser.add_argument("--threads", type=int, default=1, help="torch threads (2 on a loaded 2-core machine ran 30x slower)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (2 on the loaded 2-core machine ran 3 to 30 times slower)")
     parser.add_argument("--out", type=Path, default=None, help="checkpoint folder")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
