@@ -1,3 +1,3 @@
 """The transfer step (docs/transfer.md, issue 32): simulator pairs of a source look's controls and
-another look's frames (`pairs`), the transfer model's training loop and checkpoints (`train`),
-and a smoke run (`smoke`). The model itself is `models/transfer.py`."""
+another look's frames (`pairs`), the transfer model's training loop and checkpoints (`train`);
+its smoke run is `bench/transfer_smoke.py`. The model itself is `models/transfer.py`."""

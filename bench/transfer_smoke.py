@@ -1,23 +1,26 @@
 """A smoke run of the transfer model (docs/transfer.md): simulator pairs of a manifest, a short
 training of a preset, free-running PSNR per look on a held-out seed. Prints JSON lines.
 
-    .venv/bin/python -m tasks.transfer.smoke --seconds 100 --out /tmp/transfer-smoke
+    .venv/bin/python bench/transfer_smoke.py --seconds 100 --out /tmp/transfer-smoke
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from tasks.manifests import load
-from tasks.tokenize.train import psnr
-from tasks.transfer.pairs import make_pairs
-from tasks.transfer.train import TrainConfig, evaluate, new_model, save_transfer, train_transfer
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from tasks.manifests import load  # noqa: E402
+from tasks.tokenize.train import psnr  # noqa: E402
+from tasks.transfer.pairs import make_pairs  # noqa: E402
+from tasks.transfer.train import TrainConfig, evaluate, new_model, save_transfer, train_transfer  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> None:
