@@ -7,7 +7,7 @@ after each stage to show where the peak is). The videos come from the cached 720
 `curate_speed.py`: L is raw_0000 and 2L is raw_0000 followed by raw_0001, joined without
 re-encoding by ffmpeg's concat demuxer (`make bench-deps`).
 
-    .venv/bin/python bench/curate_memory.py [--minutes-each 2]
+    .venv/bin/python bench/curate_memory.py
 """
 
 from __future__ import annotations

@@ -27,7 +27,6 @@ import sys
 import time
 from pathlib import Path
 
-import av
 import cv2
 import numpy as np
 
@@ -37,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 from tasks.curate.config import CurateConfig  # noqa: E402
 from tasks.guard.config import GuardConfig  # noqa: E402
 from tasks.guard.faces import detect_faces, guard_stream  # noqa: E402
+from tasks.video import stored_frames  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
 LABELS = ROOT / "tests" / "tasks" / "guard" / "face_boxes.json"
@@ -45,8 +45,7 @@ HIDDEN = 0.5
 
 
 def decode(path: Path) -> list[np.ndarray]:
-    with av.open(str(path)) as container:
-        return [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
+    return list(stored_frames(path))
 
 
 def rotate_box(box, shape, turns: int):

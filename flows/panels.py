@@ -33,6 +33,7 @@ from tasks.panels.grid import expand, primary_camera, resolve_grid
 from tasks.panels.lineage import panel_body, panel_lineage
 from tasks.panels.world import WorldModelRequest, world_model_rollout, world_request
 from tasks.sim import files
+from tasks.video import read_frames
 
 load_manifest = task(manifests.load, name="load-manifest")
 # Inputs are whole videos: hashing them for a cache key would cost more than it saves.
@@ -103,7 +104,7 @@ def render_panel(run: RunContext, spec: PanelSpec, variants: list[ScenarioManife
     rows, world_batch = [], LineageBatch()
     for pv, variant in zip(spec.variants, variants):
         ep, _ = episodes_by_cell[(pv.cell, 0)]
-        frames = sheet.read_frames(ep.videos[cam])
+        frames = read_frames(ep.videos[cam])
         world = None
         if world_model:
             world, found = rollout_world_model(world_model, world_request(ep, variant, cam, fps, frames),

@@ -32,7 +32,6 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import av
 import numpy as np
 import pandas as pd
 import pyarrow as pa
@@ -43,7 +42,7 @@ from schemas.hashing import sha256_file
 from tasks.export import stats as statistics
 from tasks.export.frames import Rows, resample
 from tasks.export.sources import Episode, Shape, Video
-from tasks.video.write import write_mp4
+from tasks.video import stored_frames, write_mp4
 
 CODEBASE_VERSION = "v3.0"
 CHUNK_SIZE = 1000  # files per chunk folder
@@ -146,12 +145,7 @@ def _write_video(video: Video, dest: Path, fps: int) -> bool:
         shutil.copyfile(video.path, dest)
         return True
 
-    def frames():
-        with av.open(str(video.path)) as container:
-            for frame in container.decode(video=0):
-                yield frame.to_ndarray(format="rgb24")
-
-    write_mp4(dest, frames(), fps)
+    write_mp4(dest, stored_frames(video.path), fps)
     return False
 
 

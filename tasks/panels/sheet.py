@@ -15,7 +15,6 @@ from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
 
-import av
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
@@ -136,15 +135,6 @@ def panel_frames(rows: Sequence[SheetRow]) -> Iterator[np.ndarray]:
             y, x = r * (tile_h + GAP) + LABEL_H, c * (tile_w + GAP)
             frame[y:y + h, x:x + tile_w] = _pair(row.sim[i], None if row.world is None else row.world[i], with_world)
         yield frame
-
-
-def read_frames(path: Path | str) -> np.ndarray:
-    """Every frame of a video as F x H x W x 3 uint8 RGB (episode videos are small)."""
-    with av.open(str(path)) as container:
-        frames = [f.to_ndarray(format="rgb24") for f in container.decode(video=0)]
-    if not frames:
-        raise ValueError(f"{path}: no frames")
-    return np.stack(frames)
 
 
 def write_png(path: Path, image: np.ndarray) -> Path:

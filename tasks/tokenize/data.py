@@ -8,17 +8,16 @@ without embedded clips. Frames are centre-cropped to a square and resized (area 
 
 from __future__ import annotations
 
-import io
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-import av
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from tasks.curate.shards import read_shard
+from tasks.video import read_frames
 
 
 @dataclass(frozen=True)
@@ -44,29 +43,13 @@ def square(frames: np.ndarray, size: int) -> np.ndarray:
     return y.round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).numpy()
 
 
-def decode_mp4(source: bytes | str | Path, max_frames: int | None = None) -> np.ndarray:
-    """Every frame (or the first ``max_frames``) of an MP4 given as bytes or a path: T x H x W x 3 uint8."""
-    handle = io.BytesIO(source) if isinstance(source, bytes) else str(source)
-    frames = []
-    with av.open(handle) as container:
-        stream = container.streams.video[0]
-        stream.thread_type = "AUTO"
-        for frame in container.decode(stream):
-            frames.append(frame.to_ndarray(format="rgb24"))
-            if max_frames and len(frames) >= max_frames:
-                break
-    if not frames:
-        raise ValueError("no video frames")
-    return np.stack(frames)
-
-
 def shard_clips(shard: Path, root: Path, shard_uri: str, size: int, max_frames: int | None = None) -> list[Clip]:
     """Every clip of one shard file, decoded and squared to ``size``."""
     table = read_shard(shard).select(["clip_id", "clip_uri", "clip_bytes"]).to_pylist()
     clips = []
     for row in table:
         source = row["clip_bytes"] if row["clip_bytes"] is not None else Path(root) / row["clip_uri"]
-        clips.append(Clip(row["clip_id"], shard_uri, square(decode_mp4(source, max_frames), size)))
+        clips.append(Clip(row["clip_id"], shard_uri, square(read_frames(source, max_frames), size)))
     return clips
 
 

@@ -9,6 +9,7 @@ gap instead of shifting every later index, and a seek finds the same frames agai
 
 from __future__ import annotations
 
+import io
 from collections.abc import Iterator
 from fractions import Fraction
 from pathlib import Path
@@ -256,3 +257,31 @@ def display_frames(path: Path) -> Iterator[np.ndarray]:
             yield np.ascontiguousarray(np.rot90(image, k=turns)) if turns else image
     finally:
         container.close()
+
+
+def stored_frames(source: bytes | str | Path, max_frames: int | None = None) -> Iterator[np.ndarray]:
+    """The frames as they are stored (no rotation or pixel-aspect correction, unlike
+    ``display_frames``): H x W x 3 uint8 RGB, of an MP4 given as a path or as its bytes; the
+    first ``max_frames`` when given. For the project's own videos (episodes, clips, panels)."""
+    handle = io.BytesIO(source) if isinstance(source, bytes) else str(source)
+    with av.open(handle) as container:
+        stream = container.streams.video[0]
+        stream.thread_type = "AUTO"
+        for count, frame in enumerate(container.decode(stream), 1):
+            yield frame.to_ndarray(format="rgb24")
+            if max_frames and count >= max_frames:
+                return
+
+
+def read_frames(source: bytes | str | Path, max_frames: int | None = None) -> np.ndarray:
+    """``stored_frames`` stacked: T x H x W x 3 uint8; ValueError when there is none."""
+    frames = list(stored_frames(source, max_frames))
+    if not frames:
+        raise ValueError("no video frames" if isinstance(source, bytes) else f"{source}: no frames")
+    return np.stack(frames)
+
+
+def frame_rate(path: str | Path) -> float:
+    """The video stream's average frame rate, as the container declares it."""
+    with av.open(str(path)) as container:
+        return float(container.streams.video[0].average_rate)

@@ -19,7 +19,6 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import av
 import numpy as np
 import pyarrow.parquet as pq
 import torch
@@ -27,9 +26,10 @@ import torch
 from models.tokenizer import VideoTokenizer
 from schemas import paths
 from tasks.curate.shards import read_shard
-from tasks.tokenize.data import decode_mp4, find_shards, square, usable_frames
+from tasks.tokenize.data import find_shards, square, usable_frames
 from tasks.tokenize.tokens import read_token_shard
 from tasks.tokenize.train import to_tensor
+from tasks.video import frame_rate, read_frames
 
 # Frames are rendered at t = f / fps and actions start at t = k / control_hz; both are
 # computed in floating point, so "the same instant" is decided to within this many seconds.
@@ -99,11 +99,6 @@ def read_steps(directory: Path) -> tuple[np.ndarray, np.ndarray]:
     time = table.column("time").to_numpy().astype(np.float64)
     action = np.array(table.column("action").to_pylist(), dtype=np.float64).reshape(len(time), -1)
     return time, action
-
-
-def video_fps(path: Path) -> float:
-    with av.open(str(path)) as container:
-        return float(container.streams.video[0].average_rate)
 
 
 def align_actions(step_time: np.ndarray, action: np.ndarray, frame_time: np.ndarray, temporal_compression: int,
@@ -180,7 +175,7 @@ def _cached_codes(video: Path, tokenizer: VideoTokenizer, tokenizer_id: str, siz
         if target.is_file():
             with np.load(target) as cached:
                 return cached["codes"].astype(np.int64), float(cached["fps"])
-    codes, fps = encode_frames(tokenizer, decode_mp4(video), size), video_fps(video)
+    codes, fps = encode_frames(tokenizer, read_frames(video), size), frame_rate(video)
     if target is not None:
         target.parent.mkdir(parents=True, exist_ok=True)
         tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")

@@ -6,8 +6,9 @@ from PIL import Image
 
 from tasks.guard.config import GuardConfig
 from tasks.guard.faces import detect_faces
-from tasks.panels.sheet import (GAP, LABEL_H, SheetRow, contact_sheet, panel_frames, read_frames, sample_indices,
+from tasks.panels.sheet import (GAP, LABEL_H, SheetRow, contact_sheet, panel_frames, sample_indices,
                                 video_layout, write_panel_media)
+from tasks.video import read_frames
 
 
 def _frames(n: int, h: int, w: int, value: int) -> np.ndarray:

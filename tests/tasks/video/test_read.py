@@ -4,8 +4,10 @@ from __future__ import annotations
 
 import pytest
 
-from tasks.video import is_reference, probe
-from tests.support import coded
+import numpy as np
+
+from tasks.video import frame_rate, is_reference, probe, read_frames, write_mp4
+from tests.support import coded, scene_frames
 
 
 def test_probe_reports_what_the_file_declares(make_video):
@@ -30,3 +32,13 @@ def test_is_reference_reads_nal_ref_idc_in_both_framings():
     assert is_reference(avcc(slice_unref, slice_ref), 4)  # one referenced slice is enough
     assert is_reference(avcc(sei), 4)  # no slice: nothing known, decode it
     assert is_reference(b"\x00\x00\x00\x09\x01", 4)  # a length past the end: unparsable
+
+
+def test_read_frames_from_a_path_or_bytes_alike(tmp_path):
+    path = write_mp4(tmp_path / "v.mp4", scene_frames(0, 64, 48, 10), 12)
+    from_path, from_bytes = read_frames(path), read_frames(path.read_bytes())
+    assert from_path.shape == (10, 48, 64, 3) and from_path.dtype == np.uint8
+    assert np.array_equal(from_path, from_bytes)
+    assert read_frames(path, max_frames=4).shape[0] == 4 and np.array_equal(read_frames(path, 4), from_path[:4])
+    assert frame_rate(path) == 12.0
+
