@@ -251,6 +251,29 @@ def _track(frames: np.ndarray, start: np.ndarray, half_px: float, palette: np.nd
     return at, seen
 
 
+def track_package(frames: np.ndarray, camera: Camera, package_start: np.ndarray) -> np.ndarray:
+    """The package's centre in every frame as `judge_push` tracks it: F x 2 pixel coordinates
+    (column, row) in each frame's own picture, NaN in a frame where it was not seen.
+
+    The same steps as the verdict's track (one exposure gain for the clip, the start projected
+    from ``package_start``, the first frame's palette, `_track`), read out frame by frame: frame
+    t's entry is where `_track` over frames 0..t sees it at t (quadratic in F; fine for clips)."""
+    frames = _exposed(frames)
+    top = seen_height(camera, np.array([package_start[0], package_start[1], TABLE_TOP + PACKAGE_HALF[2]]))
+    start = np.array([package_start[0], package_start[1], top])
+    start_px = project(camera, start[None])[0]
+    half_px = min(PACKAGE_HALF[:2]) * focal_px(camera) / depth(camera, start)
+    palette = _palette(frames, start_px, half_px, image_shift(frames[0], frames[-1]))
+    out = np.full((len(frames), 2), np.nan)
+    seen = 0
+    for t in range(len(frames)):
+        at, now = _track(frames[:t + 1], start_px, half_px, palette)
+        if now > seen:
+            out[t] = at
+        seen = now
+    return out
+
+
 def judge_push(frames: np.ndarray, camera: Camera, evaluation: Evaluation, package_start: np.ndarray,
                reference: np.ndarray | None = None) -> Verdict:
     """frames: F x H x W x 3 uint8 from ``camera`` (world-mounted); package_start: the
