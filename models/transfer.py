@@ -2,8 +2,10 @@
 
 A small U-Net applied frame by frame: frame t is made from the controls of frame t (edges,
 blur, depth, segmentation), the generator's own frame t - 1 (zeros for the first frame) and a
-prompt from a fixed vocabulary of looks, so frame t depends on controls and outputs up to t
-only. Each control's input channels are multiplied by its weight, a scalar per clip or a map
+prompt from a fixed vocabulary of looks, and optionally a reference clip's colour statistics
+(``reference_features``: the look of any clip, e.g. from a curated shard, for looks a word
+cannot pin down, such as one random colour shift), so frame t depends on controls and
+outputs up to t only. Each control's input channels are multiplied by its weight, a scalar per clip or a map
 per pixel and frame, as Cosmos-Transfer weights its control branches (a weight of 0 removes
 that control exactly); the prompt scales and shifts every normalised feature map (FiLM).
 
@@ -46,6 +48,7 @@ class TransferConfig(BaseModel):
     prompt_dim: int = Field(32, ge=1)
     channels: tuple[int, ...] = Field((32, 64, 128), min_length=1, description="width per resolution level, finest first")
     groups: int = Field(8, ge=1, description="GroupNorm groups (every width must divide by it)")
+    reference: bool = Field(False, description="also conditioned on a reference clip's colour statistics")
 
     @model_validator(mode="after")
     def _consistent(self) -> "TransferConfig":
@@ -72,6 +75,23 @@ class TransferConfig(BaseModel):
             return self.prompts.index(prompt)
         except ValueError:
             raise ValueError(f"unknown prompt {prompt!r}; known: {', '.join(self.prompts)}") from None
+
+
+REFERENCE_BINS = 8  # histogram bins per colour channel
+REFERENCE_FEATURES = 3 + 3 + 3 * REFERENCE_BINS
+
+
+def reference_features(frames: torch.Tensor) -> torch.Tensor:
+    """A clip's look as numbers: frames ``B x 3 x T x H x W`` in [-1, 1] -> ``B x
+    REFERENCE_FEATURES``: per colour channel the mean, the standard deviation and the share of
+    pixels in each of ``REFERENCE_BINS`` equal bins over [-1, 1]. Global over frames and
+    pixels, so any clip of any size and content can be a reference."""
+    flat = frames.detach().float().flatten(2)  # B x 3 x N
+    mean, std = flat.mean(2), flat.std(2, unbiased=False)
+    index = ((flat.clamp(-1, 1) + 1) * (REFERENCE_BINS / 2)).long().clamp(max=REFERENCE_BINS - 1)
+    counts = torch.zeros(*flat.shape[:2], REFERENCE_BINS, device=flat.device).scatter_add_(
+        2, index, torch.ones_like(flat))
+    return torch.cat([mean, std, (counts / flat.shape[2]).flatten(1)], 1)
 
 
 class FiLMBlock(nn.Module):
@@ -103,6 +123,9 @@ class TransferNet(nn.Module):
         self.config = config
         c = config
         self.prompt = nn.Embedding(len(c.prompts), c.prompt_dim)
+        # A reference's statistics move the prompt's embedding; without one it is the prompt's alone.
+        self.reference = nn.Sequential(nn.Linear(REFERENCE_FEATURES, c.prompt_dim), nn.SiLU(),
+                                       nn.Linear(c.prompt_dim, c.prompt_dim)) if c.reference else None
         self.conv_in = nn.Conv2d(c.control_channels + 3, c.channels[0], 3, padding=1)
         self.down = nn.ModuleList()
         self.pool = nn.ModuleList()
@@ -133,14 +156,26 @@ class TransferNet(nn.Module):
         w = w.reshape(*w.shape, *([1] * (controls.dim() - w.dim())))
         return controls * w
 
+    def condition(self, prompts: torch.Tensor, reference: torch.Tensor | None = None) -> torch.Tensor:
+        """The look's embedding ``B x prompt_dim``: the prompt's, moved by the reference's
+        features (``B x REFERENCE_FEATURES``; NaN rows mean "no reference" for that clip)."""
+        p = self.prompt(prompts)
+        if reference is None:
+            return p
+        if self.reference is None:
+            raise ValueError("this transfer model was not trained with reference clips")
+        given = ~reference.isnan().any(1, keepdim=True)
+        return p + self.reference(torch.nan_to_num(reference.to(p))) * given
+
     def step(self, controls: torch.Tensor, previous: torch.Tensor, prompts: torch.Tensor,
-             weights: torch.Tensor | None = None) -> torch.Tensor:
+             weights: torch.Tensor | None = None, reference: torch.Tensor | None = None) -> torch.Tensor:
         """One frame: controls ``B x C x H x W``, previous frame ``B x 3 x H x W`` in [-1, 1],
-        prompts ``B``, weights ``B x n`` or ``B x n x H x W`` -> frame ``B x 3 x H x W`` in [-1, 1]."""
+        prompts ``B``, weights ``B x n`` or ``B x n x H x W``, reference features ``B x
+        REFERENCE_FEATURES`` or None -> frame ``B x 3 x H x W`` in [-1, 1]."""
         m = self.config.multiple
         if controls.shape[-1] % m or controls.shape[-2] % m:
             raise ValueError(f"frame size {tuple(controls.shape[-2:])}: H and W must be multiples of {m}")
-        p = self.prompt(prompts)
+        p = self.condition(prompts, reference)
         h = self.conv_in(torch.cat([self.weighted(controls, weights), previous], 1))
         skips = []
         for i, block in enumerate(self.down):
@@ -155,8 +190,9 @@ class TransferNet(nn.Module):
         return torch.tanh(self.conv_out(nn.functional.silu(self.norm_out(h))))
 
     def forward(self, controls: torch.Tensor, prompts: torch.Tensor, weights: torch.Tensor | None = None,
-                previous: torch.Tensor | None = None) -> torch.Tensor:
-        """A clip: controls ``B x C x T x H x W`` -> frames ``B x 3 x T x H x W`` in [-1, 1].
+                previous: torch.Tensor | None = None, reference: torch.Tensor | None = None) -> torch.Tensor:
+        """A clip: controls ``B x C x T x H x W`` -> frames ``B x 3 x T x H x W`` in [-1, 1];
+        ``reference``: ``reference_features`` of a clip in the wanted look, or None.
 
         With ``previous`` (``B x 3 x T x H x W``: frame t is given frame t - 1 of it, zeros for
         the first) all frames are made at once (teacher forcing); without it frame by frame,
@@ -171,12 +207,13 @@ class TransferNet(nn.Module):
         if previous is not None:
             shifted = torch.cat([torch.zeros_like(previous[:, :, :1]), previous[:, :, :-1]], 2)
             flat = lambda x: x.movedim(2, 1).reshape(b * t, x.shape[1], hh, ww)  # noqa: E731
-            out = self.step(flat(controls), flat(shifted), prompts.repeat_interleave(t), per_frame)
+            ref = None if reference is None else reference.repeat_interleave(t, 0)
+            out = self.step(flat(controls), flat(shifted), prompts.repeat_interleave(t), per_frame, ref)
             return out.reshape(b, t, 3, hh, ww).movedim(1, 2)
         frames, prev = [], controls.new_zeros(b, 3, hh, ww)
         for i in range(t):
             w = None if per_frame is None else per_frame.reshape(b, t, *per_frame.shape[1:])[:, i]
-            prev = self.step(controls[:, :, i], prev, prompts, w)
+            prev = self.step(controls[:, :, i], prev, prompts, w, reference)
             frames.append(prev)
         return torch.stack(frames, 2)
 
@@ -187,6 +224,8 @@ PRESETS: dict[str, TransferConfig] = {
     # This machine's smoke runs at 64 x 64 (about 0.29M parameters: 26 ms a frame forward and
     # backward on one loaded core; (32, 64, 128), 1.1M, took 4x that).
     "small": TransferConfig(name="small", channels=(16, 32, 64), prompt_dim=32, groups=8),
+    # The same, also conditioned on a reference clip's colour statistics (about 2K parameters more).
+    "small-ref": TransferConfig(name="small-ref", channels=(16, 32, 64), prompt_dim=32, groups=8, reference=True),
 }
 
 

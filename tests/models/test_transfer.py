@@ -1,9 +1,10 @@
-"""The transfer model: shapes, control weights, the prompt, causality over time, seeding."""
+"""The transfer model: shapes, control weights, the prompt, the reference clip, causality over time, seeding."""
 
 import pytest
 import torch
 
-from models.transfer import PRESETS, PROMPTS, TransferConfig, TransferNet, preset
+from models.transfer import (PRESETS, PROMPTS, REFERENCE_BINS, REFERENCE_FEATURES, TransferConfig, TransferNet, preset,
+                              reference_features)
 
 torch.set_num_threads(1)
 
@@ -119,3 +120,40 @@ def test_same_seed_same_weights_and_output():
     with torch.no_grad():
         assert torch.equal(_model(seed=3)(x, torch.tensor([0, 1])), _model(seed=3)(x, torch.tensor([0, 1])))
         assert not torch.equal(_model(seed=3)(x, torch.tensor([0, 1])), _model(seed=4)(x, torch.tensor([0, 1])))
+
+
+def test_reference_features_are_the_clips_colour_statistics():
+    frames = torch.full((1, 3, 2, 4, 4), -1.0)
+    frames[:, 0] = 0.5  # red at 0.5 everywhere, green and blue at -1
+    feats = reference_features(frames)
+    assert feats.shape == (1, REFERENCE_FEATURES)
+    assert torch.allclose(feats[0, :3], torch.tensor([0.5, -1.0, -1.0])) and torch.all(feats[0, 3:6] == 0)
+    hist = feats[0, 6:].reshape(3, REFERENCE_BINS)
+    assert torch.allclose(hist.sum(1), torch.ones(3))
+    assert hist[0, 6] == 1 and hist[1, 0] == 1  # 0.5 falls in bin 6 of 8 over [-1, 1]
+    # global statistics: the order of frames and pixels, and the clip's size, do not matter
+    g = torch.Generator().manual_seed(0)
+    clip = torch.rand(1, 3, 3, 8, 8, generator=g) * 2 - 1
+    assert torch.allclose(reference_features(clip), reference_features(clip.flip(2).flip(3)), atol=1e-6)
+    assert torch.allclose(reference_features(clip), reference_features(clip.repeat(1, 1, 1, 2, 2)), atol=1e-6)
+
+
+def test_a_reference_clip_moves_the_output_and_a_missing_one_is_the_prompt_alone():
+    config = preset("tiny").model_copy(update={"reference": True})
+    torch.manual_seed(0)
+    model = TransferNet(config).eval()
+    x, prompts = _controls(model), torch.tensor([1, 1])
+    warm = reference_features(torch.rand(2, 3, 2, 8, 8) * 0.5 + 0.5)
+    cold = reference_features(torch.rand(2, 3, 2, 8, 8) * 0.5 - 1)
+    none = torch.full((2, REFERENCE_FEATURES), float("nan"))
+    with torch.no_grad():
+        plain = model(x, prompts)
+        assert (model(x, prompts, reference=warm) - model(x, prompts, reference=cold)).abs().mean() > 1e-3
+        assert torch.equal(model(x, prompts, reference=none), plain)
+        mixed = model(x, prompts, reference=torch.stack([warm[0], none[0]]))  # per clip
+        assert torch.equal(mixed[1], plain[1]) and not torch.equal(mixed[0], plain[0])
+        forced = model(x, prompts, previous=torch.zeros(2, 3, 3, 16, 16), reference=warm)
+        assert torch.allclose(forced[:, :, 0], model(x[:, :, :1], prompts, reference=warm)[:, :, 0], atol=1e-5)
+    with pytest.raises(ValueError, match="not trained with reference clips"):
+        _model()(x, prompts, reference=warm)
+    assert TransferConfig.model_validate({"name": "old", "channels": [8, 16], "groups": 4}).reference is False
