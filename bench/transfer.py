@@ -21,6 +21,7 @@ import sys
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 
@@ -90,6 +91,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--speed-runs", type=int, default=3)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
+    cv2.setNumThreads(args.threads)  # Canny, blur and flow on the same one core
     model = load_transfer(args.model)
     looks = tuple(args.looks or [p for p in LOOKS if p in model.config.prompts])
     if "nominal" not in looks:
