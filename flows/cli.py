@@ -10,13 +10,13 @@ from __future__ import annotations
 
 import logging
 
-from flows import cli_controls, cli_data, cli_export, cli_lineage, cli_policy, cli_read, cli_world  # noqa: F401  (they register the commands)
+from flows import cli_controls, cli_data, cli_export, cli_lineage, cli_policy, cli_read, cli_transfer, cli_world  # noqa: F401  (they register the commands)
 from flows.cli_shell import app, evaluate_app, manifest_app
 from schemas.errors import WorldlineError
 
 # The command modules register by topic; `worldline --help` lists them in this order.
 ORDER = ["audit", "summary", "sql", "report", "register", "simulate", "corpus", "demo", "server", "curate", "scenes", "inspect",
-         "controls", "tokenize", "train", "panels", "train-policy", "loop", "verify", "export"]
+         "controls", "train-transfer", "transfer", "tokenize", "train", "panels", "train-policy", "loop", "verify", "export"]
 
 app.info.help = __doc__
 app.registered_commands.sort(key=lambda c: ORDER.index(c.name or c.callback.__name__))

@@ -175,7 +175,7 @@ def command(group: typer.Typer, model: type[FlowParams], name: str | None = None
                 option = model.option(field)
                 key = option[2:].replace("-", "_")
                 decl = f"{option}/--no-{option[2:]}" if hint is bool else option
-                default = typer.Option(info.default, decl, help=info.description, **bounds)
+                default = typer.Option(... if info.is_required() else info.default, decl, help=info.description, **bounds)
             fields[key] = field
             parameters.append(inspect.Parameter(key, inspect.Parameter.KEYWORD_ONLY, default=default, annotation=hint))
         if listing:

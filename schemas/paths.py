@@ -24,6 +24,15 @@ CONTROLS_DIR = "controls"
 CAMERA_VIDEO = "{camera}.mp4"  # a camera's video inside an episode folder (EPISODE_VIDEO)
 EPISODE_CONTROL = EPISODE_DIR + "/" + CONTROLS_DIR + "/" + CONTROL_FILE
 
+# A simulated episode in another look (tasks/transfer/apply.py, docs/transfer.md): each
+# camera's generated video, the source's steps.parquet and meta.json copied unchanged, and
+# TRANSFER_INFO (look, model, control weights). Never beside renders or generations. {look}
+# is the look with spaces as dashes; {setting:.12} hashes the model's weights and the control
+# weights, so two models or weightings of one look never overwrite each other's files.
+TRANSFER_DIR = "transfer/{manifest_hash:.12}/episode_{index:06d}/{look}/{setting:.12}"
+TRANSFER_VIDEO = TRANSFER_DIR + "/{camera}.mp4"
+TRANSFER_INFO = "transfer.json"
+
 CORPUS_VIDEO = "corpus/seed_{seed:06d}/raw_{index:04d}.mp4"
 CORPUS_TRUTH = "corpus/seed_{seed:06d}/raw_{index:04d}.truth.json"
 

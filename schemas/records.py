@@ -13,6 +13,8 @@ ArtifactKind = Literal[
     "episode",
     "episode_video",
     "control",
+    "transfer_model",
+    "transferred_video",
     "clip",
     "shard",
     "checkpoint",

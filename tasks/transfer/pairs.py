@@ -91,7 +91,7 @@ def seg_classes(ids: np.ndarray, legend: tuple[str, ...]) -> np.ndarray:
     return table[ids]
 
 
-def _resize(stack: np.ndarray, size: int, nearest: bool = False) -> np.ndarray:
+def resize_frames(stack: np.ndarray, size: int, nearest: bool = False) -> np.ndarray:
     if stack.shape[1:3] == (size, size):
         return stack
     how = cv2.INTER_NEAREST if nearest else cv2.INTER_AREA
@@ -120,13 +120,13 @@ def make_pairs(parent: ScenarioManifest, seeds: list[int] | tuple[int, ...], pro
         recorder = Recorder()
         nominal = rollout(source, seed, on_frame=recorder)
         rendered = recorder.rendered()
-        frames = _resize(nominal.frames[camera], size)
+        frames = resize_frames(nominal.frames[camera], size)
         made = frame_controls(frames)
-        depth = _resize(rendered.depth_mm[camera], size, nearest=True)
-        seg = _resize(seg_classes(rendered.ids[camera], rendered.legend), size, nearest=True)
+        depth = resize_frames(rendered.depth_mm[camera], size, nearest=True)
+        seg = resize_frames(seg_classes(rendered.ids[camera], rendered.legend), size, nearest=True)
         for prompt in prompts:
             episode = nominal if prompt == "nominal" else rollout(look_manifest(parent, prompt), seed)
             pairs.append(PairClip(prompt=prompt, seed=seed, camera=camera, edges=made["edges"], blur=made["blur"],
-                                  depth_mm=depth, seg=seg, frames=_resize(episode.frames[camera], size),
+                                  depth_mm=depth, seg=seg, frames=resize_frames(episode.frames[camera], size),
                                   source_pose=nominal.object_pose, target_pose=episode.object_pose))
     return pairs

@@ -29,6 +29,7 @@ from tasks.tokenize.train import lr_at, psnr
 from tasks.transfer.pairs import PairClip, depth_signal
 
 CHECKPOINT_KEY = "transfer"
+DEFAULT_SIZE = 64  # make_pairs' size: a checkpoint whose config names none was trained at it
 
 
 class TrainConfig(BaseModel):
@@ -170,9 +171,18 @@ def evaluate(model: TransferNet, pairs: Sequence[PairClip], frames: int | None =
 
 
 def save_transfer(model: TransferNet, folder: Path, train: TrainConfig | None = None,
-                  history: list[dict] | None = None) -> tuple[Path, Path]:
-    extra = {"train": train.model_dump(mode="json") if train else None, "history": history or []}
-    return write_checkpoint(model, folder, CHECKPOINT_KEY, extra)
+                  history: list[dict] | None = None, extra: dict | None = None) -> tuple[Path, Path]:
+    """``extra``: more config.json keys, e.g. ``size``, the frame side the pairs were made at
+    (what `worldline transfer` makes controls at; `checkpoint_size`)."""
+    body = {"train": train.model_dump(mode="json") if train else None, "history": history or [], **(extra or {})}
+    return write_checkpoint(model, folder, CHECKPOINT_KEY, body)
+
+
+def checkpoint_size(folder: Path) -> int:
+    """The frame side a transfer checkpoint was trained at: its config's ``size``, else 64
+    (`tasks.transfer.pairs.make_pairs`'s default)."""
+    size = read_config(folder, CHECKPOINT_KEY, "transfer checkpoint").get("size", DEFAULT_SIZE)
+    return size if isinstance(size, int) and size > 0 else DEFAULT_SIZE
 
 
 def load_transfer(folder: Path) -> TransferNet:
@@ -185,3 +195,13 @@ def new_model(config: TrainConfig) -> TransferNet:
     """The preset's model, initialised from the run's seed."""
     torch.manual_seed(config.seed)
     return TransferNet(preset(config.preset))
+
+
+def train_and_save(pairs: Sequence[PairClip], config: TrainConfig, folder: Path, extra: dict,
+                   device: str | None = None) -> tuple[list[dict], int]:
+    """(history, parameters) of a new ``config.preset`` model trained on ``pairs`` on ``device``
+    (``tasks.device``; default $WORLDLINE_DEVICE, else auto) and saved under ``folder`` with ``extra``."""
+    model = new_model(config)
+    history = train_transfer(model, pairs, config, runtime=Runtime(device=device) if device else Runtime())
+    save_transfer(model, folder, config, history, extra)
+    return history, sum(p.numel() for p in model.parameters())

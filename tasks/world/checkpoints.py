@@ -42,19 +42,20 @@ def _sha256(path: Path) -> str:
 
 def checkpoint_lineage(checkpoint_id: str, folder: Path, root: Path, parents: Sequence[tuple[str, str]],
                        history: Sequence[dict], stage_run_id: str, manifest_hash: str | None,
-                       attrs: dict) -> LineageBatch:
+                       attrs: dict, kind: str = "checkpoint", metrics: Sequence[str] = METRICS) -> LineageBatch:
     """The checkpoint artifact (its weights file; ``attrs`` plus the config uri), an edge from
-    every (parent id, relation) in ``parents``, and train_loss / train_accuracy per logged step."""
+    every (parent id, relation) in ``parents``, and train_<name> per logged step for each of
+    ``metrics`` (train_loss and train_accuracy for a world model)."""
     weights = Path(folder) / WEIGHTS_FILE
     batch = LineageBatch(artifacts=[ArtifactRecord(
-        artifact_id=checkpoint_id, kind="checkpoint", uri=weights.relative_to(root).as_posix(),
+        artifact_id=checkpoint_id, kind=kind, uri=weights.relative_to(root).as_posix(),
         sha256=_sha256(weights), bytes=weights.stat().st_size, manifest_hash=manifest_hash,
         stage_run_id=stage_run_id,
         attrs={**attrs, "config_uri": (Path(folder) / CONFIG_FILE).relative_to(root).as_posix()},
     )])
     batch.edges.extend(EdgeRecord(parent_id=p, child_id=checkpoint_id, relation=r) for p, r in dict.fromkeys(parents))
     for record in history:
-        for name in METRICS:
+        for name in metrics:
             batch.metrics.append(MetricRecord(subject_id=checkpoint_id, name=f"train_{name}", step=record["step"],
                                               value=record[name], stage_run_id=stage_run_id,
                                               manifest_hash=manifest_hash))

@@ -20,6 +20,7 @@ from flows.panels import panels
 from flows.params import ParamsError, Refused
 from flows.params_data import CorpusParams, CurateParams, RegisterParams, SimulateParams
 from flows.params_policy import EvaluateParams, LoopParams, PanelsParams, TrainPolicyParams
+from flows.params_transfer import TrainTransferParams, TransferParams
 from flows.params_world import PhysicsParams, TokenizeParams, TrainParams
 from flows.physics import evaluate_physics
 from flows.policy import train_policy
@@ -27,6 +28,7 @@ from flows.register import register
 from flows.simulate import simulate
 from flows.tokenize import tokenize
 from flows.train import train
+from flows.transfer import train_transfer, transfer
 from tasks.manifests import load
 
 from tests.support import MANIFESTS
@@ -37,7 +39,8 @@ BASE = str(MANIFESTS / "mobile_rig_aisle.yaml")  # a mobile base: no arm
 
 MODELS = [(register, RegisterParams), (simulate, SimulateParams), (corpus, CorpusParams), (curate, CurateParams),
           (tokenize, TokenizeParams), (train, TrainParams), (evaluate_physics, PhysicsParams), (panels, PanelsParams),
-          (evaluate, EvaluateParams), (train_policy, TrainPolicyParams), (loop, LoopParams)]
+          (evaluate, EvaluateParams), (train_policy, TrainPolicyParams), (loop, LoopParams),
+          (train_transfer, TrainTransferParams), (transfer, TransferParams)]
 
 # (flow, the parameters a deployment passes, the same value on the command line, what both say;
 # a pair where the CLI names the option and the flow the parameter)
@@ -59,6 +62,12 @@ CHECKS = [
      "unknown world model preset 'huge'"),
     (train_policy, {"manifest": PUSH, "preset_name": "huge"}, ["train-policy", PUSH, "--preset", "huge"],
      "unknown state policy preset 'huge'"),
+    (train_transfer, {"manifest": PUSH, "preset_name": "huge"}, ["train-transfer", PUSH, "--preset", "huge"],
+     "unknown transfer preset 'huge'"),
+    (train_transfer, {"manifest": PUSH, "seeds": "5-2"}, ["train-transfer", PUSH, "--seeds", "5-2"],
+     "from 1 to 10000 seeds"),
+    (transfer, {"source": "x", "model": "m", "look": "sepia"}, ["transfer", "x", "--model", "m", "--look", "sepia"],
+     "unknown look 'sepia'"),
     (train_policy, {"manifest": PUSH, "observe": "overhead,overhead"}, ["train-policy", PUSH, "--observe", "overhead,overhead"],
      "observe 'overhead,overhead': name one or more distinct cameras"),
     (loop, {"manifest": PUSH, "policy": "scripted"}, ["loop", PUSH, "--policy", "scripted"],
@@ -151,7 +160,8 @@ def test_each_flow_validates_with_a_model_of_its_very_parameters(flow, model):
     (train, {"manifest": PUSH, "device": "cuda:0"}, ["train", PUSH, "--device", "cuda:0"]),
     (train_policy, {"manifest": PUSH, "device": "cuda"}, ["train-policy", PUSH, "--device", "cuda"]),
     (evaluate, {"manifest": PUSH, "device": "cuda"}, ["evaluate", "policies", PUSH, "--device", "cuda"]),
-    (panels, {"manifest": PUSH, "device": "cuda"}, ["panels", PUSH, "--device", "cuda"])])
+    (panels, {"manifest": PUSH, "device": "cuda"}, ["panels", PUSH, "--device", "cuda"]),
+    (train_transfer, {"manifest": PUSH, "device": "cuda"}, ["train-transfer", PUSH, "--device", "cuda"])])
 def test_cuda_without_a_gpu_is_refused_in_one_line(flow, params, argv):
     done = runner.invoke(app, argv)
     assert done.exit_code == 2 and "no CUDA GPU is visible to PyTorch" in done.output, done.output

@@ -1,0 +1,146 @@
+"""`worldline train-transfer` and `worldline transfer` end to end: one push_closeup episode of a
+second simulated with its controls, a `tiny` model saved to a folder, clips, labels, lineage,
+skips, and every bad input refused in one line before anything is written."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from flows.cli import app
+from flows.params import ParamsError
+from schemas.settings import Settings
+from tasks.transfer.train import TrainConfig, new_model, save_transfer
+from tasks.video.read import display_frames
+from warehouse import audit
+from warehouse.store import Warehouse
+
+from tests.support import MANIFESTS
+
+runner = CliRunner()
+SIDE = 32
+
+
+def lines(result) -> list[str]:
+    return [line for line in result.output.splitlines() if line.strip()]
+
+
+def query(sql: str) -> list[tuple]:
+    with Warehouse(Settings().warehouse_path, read_only=True) as warehouse:
+        return warehouse.query(sql)[1]
+
+
+@pytest.fixture(scope="module")
+def world(prefect_harness, tmp_path_factory):
+    """(data root, manifest, episode folder, tiny model folder): the module's own data root."""
+    torch.set_num_threads(1)
+    root = tmp_path_factory.mktemp("transfer-root")
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("WORLDLINE_DATA_ROOT", str(root))
+        manifest = root.parent / "closeup.yaml"
+        manifest.write_text((MANIFESTS / "push_closeup.yaml").read_text().replace("horizon_s: 6.0", "horizon_s: 1.0"))
+        result = runner.invoke(app, ["simulate", str(manifest), "--episodes", "1", "--controls"])
+        assert result.exit_code == 0, result.output
+        (episode,) = (root / "episodes").glob("*/episode_000000")
+        model = root.parent / "tiny-model"
+        save_transfer(new_model(TrainConfig(preset="tiny")), model, extra={"size": SIDE, "camera": "side"})
+        yield root, manifest, episode, model
+
+
+def test_a_transfer_writes_each_look_beside_its_labels_in_lineage_and_skips_on_a_rerun(world):
+    root, _, episode, model = world
+    result = runner.invoke(app, ["transfer", str(episode), "--model", str(model), "--look", "dim,very dim"])
+    assert result.exit_code == 0 and "2 clips written, 0 done before" in result.output, result.output
+    videos = sorted((root / "transfer").glob("*/episode_000000/*/*/side.mp4"))
+    assert [v.parts[-3] for v in videos] == ["dim", "very-dim"]
+    source = list(display_frames(episode / "side.mp4"))
+    for video in videos:
+        frames = np.stack(list(display_frames(video)))
+        assert frames.shape == (len(source), SIDE, SIDE, 3)
+        for name in ("steps.parquet", "meta.json"):  # the labels, byte for byte
+            assert (video.parent / name).read_bytes() == (episode / name).read_bytes()
+        info = json.loads((video.parent / "transfer.json").read_text())
+        assert info["look"] in ("dim", "very dim") and info["size"] == SIDE and info["source"].startswith("episodes/")
+    edges = query("SELECT e.relation, p.kind, count(*) FROM edges e JOIN artifacts p ON p.artifact_id = e.parent_id "
+                  "JOIN artifacts c ON c.artifact_id = e.child_id WHERE c.kind = 'transferred_video' GROUP BY ALL "
+                  "ORDER BY 1")
+    assert edges == [("controlled_by", "control", 4), ("transferred_by", "transfer_model", 2),
+                     ("transferred_from", "episode_video", 2)]
+    guarded = query("SELECT m.name, count(*) FROM metrics m JOIN artifacts a ON a.artifact_id = m.subject_id "
+                    "WHERE a.kind = 'transferred_video' AND m.name IN ('guard_text_matches', 'guard_faces_boxes') "
+                    "GROUP BY 1 ORDER BY 1")
+    assert guarded == [("guard_faces_boxes", 2), ("guard_text_matches", 2)]
+
+    (clip,) = query("SELECT artifact_id FROM artifacts WHERE kind = 'transferred_video' AND attrs->>'look' = 'dim'")
+    sql, _ = audit.bind("ancestry", {"artifact": "x"})
+    with Warehouse(Settings().warehouse_path, read_only=True) as warehouse:
+        kinds = {r[1] for r in warehouse.query(sql, {"artifact": clip[0]})[1]}
+    assert kinds == {"transferred_video", "episode_video", "episode", "manifest", "control", "transfer_model"}
+
+    again = runner.invoke(app, ["transfer", str(episode), "--model", str(model), "--look", "dim,very dim"])
+    assert again.exit_code == 0 and "0 clips written, 2 done before" in again.output, again.output
+    verified = runner.invoke(app, ["verify", "--format", "json"])
+    assert verified.exit_code == 0, verified.output  # every transferred file has the bytes lineage holds
+
+
+def test_each_bad_input_is_refused_in_one_line_before_anything_is_written(world, tmp_path):
+    root, _, episode, model = world
+    not_transfer = tmp_path / "tokenizer"
+    not_transfer.mkdir()
+    (not_transfer / "config.json").write_text(json.dumps({"tokenizer": {"name": "t"}}))
+    shifted = tmp_path / "episode"
+    shifted.mkdir()
+    for path in episode.rglob("*"):
+        if path.is_file():
+            (shifted / path.relative_to(episode)).parent.mkdir(parents=True, exist_ok=True)
+            (shifted / path.relative_to(episode)).write_bytes(path.read_bytes())
+    with np.load(episode / "controls" / "side.depth.npz") as npz:
+        arrays = dict(npz)
+    np.savez_compressed(shifted / "controls" / "side.depth.npz", **{**arrays, "depth_mm": arrays["depth_mm"][1:]})
+    base = ["transfer", str(episode), "--model", str(model)]
+    cases = [(base + ["--look", "sepia"], "--look: unknown look 'sepia'"),
+             (base + ["--look", "dim,k1ll"], "--look: blocked term 'kill'"),
+             (["transfer", str(episode), "--model", str(not_transfer), "--look", "dim"], "not a transfer checkpoint"),
+             (base + ["--look", "dim", "--camera", "wrist"], "camera 'wrist' is not one of the episode's"),
+             (base + ["--look", "dim", "--weights", "normals=1"], "--weights: 'normals=1'"),
+             (["transfer", str(shifted), "--model", str(model), "--look", "dim"], "side.depth.npz: ")]
+    before = sorted(p for p in (root / "transfer").rglob("*")) if (root / "transfer").exists() else []
+    runs = query("SELECT count(*) FROM runs")
+    for args, said in cases:
+        refused = runner.invoke(app, args, terminal_width=400)
+        assert refused.exit_code == 2 and len(lines(refused)) == 1 and said in lines(refused)[0], refused.output
+    assert "frames, the episode's side video has" in lines(refused)[0]
+    after = sorted(p for p in (root / "transfer").rglob("*")) if (root / "transfer").exists() else []
+    assert after == before and query("SELECT count(*) FROM runs") == runs
+
+    from flows.transfer import transfer  # a deployment run gets the same checks, as ParamsError
+
+    with pytest.raises(ParamsError, match="^look: unknown look 'sepia'"):
+        transfer.fn(source=str(episode), model=str(model), look="sepia")
+    with pytest.raises(ParamsError, match="camera 'wrist'"):
+        transfer.fn(source=str(episode), model=str(model), look="dim", camera="wrist")
+
+
+def test_train_transfer_records_a_transfer_model_that_transfer_runs(world):
+    root, manifest, episode, _ = world
+    args = ["train-transfer", str(manifest), "--seeds", "1", "--preset", "tiny", "--steps", "3", "--size", str(SIDE)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0 and "train PSNR" in result.output, result.output
+    (weights,) = (root / "checkpoints").glob("transfer-tiny/*/model.safetensors")
+    rows = query("SELECT a.artifact_id, e.relation, e.parent_id, a.attrs->>'preset' FROM artifacts a "
+                 "JOIN edges e ON e.child_id = a.artifact_id WHERE a.kind = 'transfer_model' "
+                 "AND a.uri LIKE 'checkpoints/%'")
+    (model_id, relation, parent, name), = rows
+    (manifest_hash,) = query("SELECT manifest_hash FROM manifests WHERE name = 'push-closeup'")
+    assert (relation, parent, name) == ("trained_on", manifest_hash[0], "tiny")
+    assert query(f"SELECT count(*) FROM metrics WHERE subject_id = '{model_id}' AND name = 'train_loss'") == [(1,)]
+    again = runner.invoke(app, args)
+    assert again.exit_code == 0 and "trained before" in again.output, again.output
+
+    done = runner.invoke(app, ["transfer", str(manifest), "--model", str(weights.parent), "--look", "textures"])
+    assert done.exit_code == 0 and "1 clips written" in done.output, done.output
+    assert query("SELECT e.parent_id FROM edges e JOIN artifacts c ON c.artifact_id = e.child_id "
+                 "WHERE e.relation = 'transferred_by' AND c.attrs->>'look' = 'textures'") == [(model_id,)]
+
