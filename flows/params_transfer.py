@@ -93,6 +93,8 @@ class TransferParams(DeviceParams):
         in a flow ParamsError (one line either way), before anything is written."""
         from tasks.checkpoint_files import CheckpointError
         from tasks.controls.check import ControlError
+        from tasks.lookup import is_hex_id
+        from tasks.manifests import ManifestError
         from tasks.transfer.apply import episode_source, model_info, parse_looks, parse_weights
         from tasks.world.inputs import episode_folders
 
@@ -104,10 +106,12 @@ class TransferParams(DeviceParams):
             except CheckpointError as exc:
                 raise Refused(f"{{model}}: {exc}") from None
             weights = parse_weights(self.weights)
+            if not Path(self.source).exists() and not is_hex_id(self.source):
+                raise Refused(f"{{source}} {self.source}: no such file or folder, and not a manifest hash")
             try:  # StepMissing (nothing simulated of it yet) is left to say so with its own exit code
                 sources = [episode_source(folder, self.camera, weights, info.get("camera"))
                            for folder in episode_folders(self.source, Path(root).resolve())[0]]
-            except ControlError as exc:
+            except (ControlError, ManifestError) as exc:
                 raise Refused(str(exc)) from None
         except Refused as refused:
             if flow:

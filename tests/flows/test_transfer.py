@@ -13,7 +13,7 @@ from flows.cli import app
 from flows.params import ParamsError
 from schemas.settings import Settings
 from tasks.transfer.train import TrainConfig, new_model, save_transfer
-from tasks.video.read import display_frames
+from tasks.video.read import display_frames, probe
 from warehouse import audit
 from warehouse.store import Warehouse
 
@@ -58,7 +58,7 @@ def test_a_transfer_writes_each_look_beside_its_labels_in_lineage_and_skips_on_a
     source = list(display_frames(episode / "side.mp4"))
     for video in videos:
         frames = np.stack(list(display_frames(video)))
-        assert frames.shape == (len(source), SIDE, SIDE, 3)
+        assert frames.shape == (len(source), SIDE, SIDE, 3) and probe(video).fps == probe(episode / "side.mp4").fps
         for name in ("steps.parquet", "meta.json"):  # the labels, byte for byte
             assert (video.parent / name).read_bytes() == (episode / name).read_bytes()
         info = json.loads((video.parent / "transfer.json").read_text())
@@ -105,6 +105,9 @@ def test_each_bad_input_is_refused_in_one_line_before_anything_is_written(world,
              (["transfer", str(episode), "--model", str(not_transfer), "--look", "dim"], "not a transfer checkpoint"),
              (base + ["--look", "dim", "--camera", "wrist"], "camera 'wrist' is not one of the episode's"),
              (base + ["--look", "dim", "--weights", "normals=1"], "--weights: 'normals=1'"),
+             (["transfer", str(tmp_path / "nothing"), "--model", str(model), "--look", "dim"],
+              "nothing: no such file or folder"),
+             (["train-transfer", str(world[1]), "--camera", "wrist"], "--camera: camera 'wrist' is not in manifest"),
              (["transfer", str(shifted), "--model", str(model), "--look", "dim"], "side.depth.npz: ")]
     before = sorted(p for p in (root / "transfer").rglob("*")) if (root / "transfer").exists() else []
     runs = query("SELECT count(*) FROM runs")
