@@ -30,12 +30,12 @@ def transfer(params: TransferParams) -> None:
     """Simulated episodes in other looks by a transfer model, from their controls, labels copied
     unchanged, under transfer/ (Prefect flow `transfer`); a bad look, model, camera or control
     is refused in one line before anything is written."""
-    params.check_inputs(Settings().data_root)
+    folder, _, _ = params.check_inputs(Settings().data_root)
     from flows.transfer import transfer as transfer_flow
 
     writing()
     try:
-        result = transfer_flow(**params.model_dump())
+        result = transfer_flow(**params.model_copy(update={"model": str(folder)}).model_dump())
     except (FileNotFoundError, ValueError) as exc:
         refuse(exc)
     out.print(f"{result['episodes']} episodes x {len(result['looks'])} looks: {len(result['written'])} clips written, "

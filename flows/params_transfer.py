@@ -62,7 +62,8 @@ class TrainTransferParams(DeviceParams):
 
 class TransferParams(DeviceParams):
     source: str = Field(description="an episode folder, or a manifest YAML or hash: every episode simulated of it")
-    model: str = Field(description="transfer checkpoint folder (`worldline train-transfer`)")
+    model: str | None = Field(None, description="transfer checkpoint folder, or the first 12+ hex digits of its id "
+                                                "(default: the newest `worldline train-transfer` trained)")
     look: str = Field(description="look[,look...]: nominal, dim, very dim, colour shift, textures")
     camera: str | None = Field(None, description="camera to transfer (default: the one the model was trained on, "
                                                  "else the episode's first)")
@@ -100,10 +101,11 @@ class TransferParams(DeviceParams):
 
         try:
             try:
-                config, info = model_info(Path(self.model))
+                folder = self._model_folder(root)
+                config, info = model_info(folder)
                 if missing := [look for look in parse_looks(self.look) if look not in config.prompts]:
-                    raise CheckpointError(f"{self.model}: the model has no look {missing[0]!r}")
-            except CheckpointError as exc:
+                    raise CheckpointError(f"{folder}: the model has no look {missing[0]!r}")
+            except (CheckpointError, FileNotFoundError) as exc:
                 raise Refused(f"{{model}}: {exc}") from None
             weights = parse_weights(self.weights)
             if not Path(self.source).exists() and not is_hex_id(self.source):
@@ -117,4 +119,18 @@ class TransferParams(DeviceParams):
             if flow:
                 raise ParamsError(str(refused)) from None
             raise
-        return Path(self.model).resolve(), info, sources
+        return folder.resolve(), info, sources
+
+    def _model_folder(self, root: Path) -> Path:
+        """``model`` as a folder: an id or None looked up in lineage, opened read-only."""
+        from schemas.settings import Settings
+        from tasks.transfer.lineage import model_folder
+        from warehouse.store import Warehouse
+
+        if self.model is not None and Path(self.model).is_dir():
+            return Path(self.model)
+        place = Settings().warehouse_path
+        if not place.exists():
+            return model_folder(None, root, self.model)
+        with Warehouse(place, read_only=True) as warehouse:
+            return model_folder(warehouse, root, self.model)

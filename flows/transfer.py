@@ -86,11 +86,12 @@ def train_transfer(manifest: str, seeds: str = "4", preset_name: str = "small", 
 
 
 @flow(name="transfer", log_prints=True)
-def transfer(source: str, model: str, look: str, camera: str | None = None, weights: str | None = None,
-             device: str | None = None) -> dict:
+def transfer(source: str, look: str, model: str | None = None, camera: str | None = None,
+             weights: str | None = None, device: str | None = None) -> dict:
     """Each camera clip of ``source`` (an episode folder, or a manifest YAML or hash: every episode
-    simulated of it) in each look of ``look`` by transfer checkpoint ``model``, controls weighted
-    by ``weights``; the labels copied unchanged beside each clip."""
+    simulated of it) in each look of ``look`` by transfer checkpoint ``model`` (a folder, an id,
+    or the newest trained), controls weighted by ``weights``; the labels copied unchanged beside
+    each clip."""
     checks = TransferParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()

@@ -93,27 +93,28 @@ def verified_policy(warehouse: Warehouse | None, root: Path, policy) -> None:
 
 
 def checkpoint_by_id(warehouse: Warehouse | None, prefix: str, condition: str, what: str,
-                     root: Path | None = None) -> tuple[str, str]:
-    """(artifact id, weights uri) of the one checkpoint matching ``condition`` (warehouse/queries.py) whose id
-    starts with ``prefix``; FileNotFoundError naming ``what`` when there is none or several
-    (or no lineage yet: ``warehouse`` None). With ``root``, its weights (when there) are
-    checked against the sha256 lineage recorded (TamperedArtifact)."""
+                     root: Path | None = None, kind: str = "checkpoint") -> tuple[str, str]:
+    """(artifact id, weights uri) of the one checkpoint (artifact of ``kind``) matching ``condition``
+    (warehouse/queries.py) whose id starts with ``prefix``; FileNotFoundError naming ``what`` when
+    there is none or several (or no lineage yet: ``warehouse`` None). With ``root``, its weights
+    (when there) are checked against the sha256 lineage recorded (TamperedArtifact)."""
     if warehouse is None:
         raise FileNotFoundError(f"{what} {prefix}: no lineage warehouse yet to look the id up in")
-    rows = queries.checkpoints_by_prefix(warehouse, condition, prefix)
+    rows = queries.checkpoints_by_prefix(warehouse, condition, prefix, kind)
     if len(rows) != 1:
         raise FileNotFoundError(f"{what} {prefix}: {'no' if not rows else 'more than one'} "
                                 f"{what} checkpoint with that id in lineage")
     artifact_id, uri, sha256 = rows[0]
     weights = integrity.path_of(uri, root) if root is not None else None
     if weights is not None and sha256 and weights.is_file():
-        integrity.check(weights, integrity.Recorded(artifact_id, "checkpoint", uri, sha256))
+        integrity.check(weights, integrity.Recorded(artifact_id, kind, uri, sha256))
     return artifact_id, uri
 
 
-def checkpoint_folder(warehouse: Warehouse | None, root: Path, name: str, condition: str, what: str) -> Path:
-    """The folder ``name`` (it must hold a config.json), or the folder of the checkpoint whose
-    id starts with ``name``."""
+def checkpoint_folder(warehouse: Warehouse | None, root: Path, name: str, condition: str, what: str,
+                      kind: str = "checkpoint") -> Path:
+    """The folder ``name`` (it must hold a config.json), or the folder of the checkpoint (artifact
+    of ``kind``) whose id starts with ``name``."""
     if Path(name).is_dir():
         folder = Path(name).resolve()
         if not (folder / CONFIG_FILE).is_file():
@@ -123,7 +124,7 @@ def checkpoint_folder(warehouse: Warehouse | None, root: Path, name: str, condit
     if not is_hex_id(name):
         raise FileNotFoundError(f"{name}: no such checkpoint folder, and not a checkpoint id")
     root = Path(root).resolve()
-    return integrity.path_of(checkpoint_by_id(warehouse, name, condition, what, root)[1], root).parent
+    return integrity.path_of(checkpoint_by_id(warehouse, name, condition, what, root, kind)[1], root).parent
 
 
 def world_model_folder(warehouse: Warehouse | None, root: Path, name: str | None) -> Path:

@@ -1,5 +1,6 @@
 """The lineage questions the flows and the CLI ask, each a named function: no SQL outside
 warehouse/. Conditions on a checkpoint's attrs (``POSTTRAINED_WORLD_MODEL``, ``BC_POLICY``, ``VISION_POLICY``,
+``TRANSFER_MODEL``,
 `tokenizer_condition`) are passed to the checkpoint queries by name."""
 
 from __future__ import annotations
@@ -11,6 +12,9 @@ from warehouse.store import Warehouse
 POSTTRAINED_WORLD_MODEL = "attrs->>'model' = 'world_model' AND attrs->>'phase' = 'posttrain'"
 BC_POLICY = "attrs->>'model' = 'bc-policy'"
 VISION_POLICY = "attrs->>'model' = 'vision-policy'"
+# Artifacts of kind transfer_model: any, and those train-transfer trained (one recorded by hand has no preset).
+TRANSFER_MODEL = "attrs->>'model' = 'transfer'"
+TRAINED_TRANSFER_MODEL = TRANSFER_MODEL + " AND attrs->>'preset' IS NOT NULL"
 
 
 def tokenizer_condition(variant: str | None) -> str:
@@ -18,18 +22,19 @@ def tokenizer_condition(variant: str | None) -> str:
     return "attrs->>'preset' IS NOT NULL" if variant is None else f"attrs->>'variant' = '{variant}'"
 
 
-def checkpoints_by_prefix(warehouse: Warehouse, condition: str, prefix: str) -> list[tuple]:
-    """(artifact id, uri, sha256) of at most two checkpoints matching ``condition`` whose id
-    starts with ``prefix``."""
-    _, rows = warehouse.query(f"SELECT artifact_id, uri, sha256 FROM artifacts WHERE kind = 'checkpoint' AND {condition} "
-                              "AND artifact_id LIKE $prefix || '%' ORDER BY artifact_id LIMIT 2", {"prefix": prefix})
+def checkpoints_by_prefix(warehouse: Warehouse, condition: str, prefix: str, kind: str = "checkpoint") -> list[tuple]:
+    """(artifact id, uri, sha256) of at most two checkpoints (artifacts of ``kind``) matching
+    ``condition`` whose id starts with ``prefix``."""
+    _, rows = warehouse.query(f"SELECT artifact_id, uri, sha256 FROM artifacts WHERE kind = $kind AND {condition} "
+                              "AND artifact_id LIKE $prefix || '%' ORDER BY artifact_id LIMIT 2",
+                              {"prefix": prefix, "kind": kind})
     return rows
 
 
-def newest_checkpoint_uri(warehouse: Warehouse, condition: str) -> str | None:
-    """The weights uri of the newest checkpoint matching ``condition``, or None."""
-    _, rows = warehouse.query("SELECT uri FROM artifacts WHERE kind = 'checkpoint' AND "
-                              f"{condition} ORDER BY recorded_at DESC, artifact_id LIMIT 1")
+def newest_checkpoint_uri(warehouse: Warehouse, condition: str, kind: str = "checkpoint") -> str | None:
+    """The weights uri of the newest checkpoint (artifact of ``kind``) matching ``condition``, or None."""
+    _, rows = warehouse.query("SELECT uri FROM artifacts WHERE kind = $kind AND "
+                              f"{condition} ORDER BY recorded_at DESC, artifact_id LIMIT 1", {"kind": kind})
     return rows[0][0] if rows else None
 
 

@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from schemas import paths
+from schemas.errors import StepMissing
 from schemas.hashing import sha256_file, stable_id
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, raw_video_id
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE
@@ -22,11 +23,27 @@ from tasks.guard.config import GuardConfig
 from tasks.guard.faces import FaceDecision
 from tasks.guard.lineage import face_attrs, face_decisions, text_decisions
 from tasks.guard.text import scan_fields
-from tasks.integrity import uri_of
-from tasks.lookup import verified_file
+from tasks.integrity import path_of, uri_of
+from tasks.lookup import checkpoint_folder, is_hex_id, verified_file
 from tasks.world.checkpoints import checkpoint_lineage
+from warehouse import queries
 
 METRICS = ("loss", "psnr")  # train_loss, train_psnr per logged step
+KIND = "transfer_model"
+
+
+def model_folder(warehouse, root: Path, name: str | None) -> Path:
+    """A transfer checkpoint's folder: ``name`` when it is a folder or no id (its config is read
+    next, `tasks.transfer.apply.model_info`), the folder of the `transfer_model` whose id starts
+    with ``name`` (12+ hex digits), or for None the newest one train-transfer trained."""
+    if name is not None and (Path(name).is_dir() or not is_hex_id(name)):
+        return Path(name)
+    if name is not None:
+        return checkpoint_folder(warehouse, root, name, queries.TRANSFER_MODEL, "transfer model", KIND)
+    uri = queries.newest_checkpoint_uri(warehouse, queries.TRAINED_TRANSFER_MODEL, KIND) if warehouse else None
+    if uri is None:
+        raise StepMissing("no transfer model in lineage: run `worldline train-transfer` first, or give --model")
+    return path_of(uri, Path(root).resolve()).parent
 
 
 def model_lineage(checkpoint_id: str, folder: Path, root: Path, manifest_hash: str, history: list[dict],
@@ -56,7 +73,7 @@ class Inputs:
 def model_inputs(warehouse, root: Path, folder: Path) -> Inputs:
     """The model's artifact id and weights sha256, checked against lineage (TamperedArtifact)."""
     weights = Path(folder) / WEIGHTS_FILE
-    model_id, _, sha = verified_file(warehouse, root, weights, "transfer_model", "transfer model")
+    model_id, _, sha = verified_file(warehouse, root, weights, KIND, "transfer model")
     if model_id is not None:
         return Inputs(model_id, sha)
     model_id = stable_id("transfer_model", sha)

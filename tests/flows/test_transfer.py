@@ -105,6 +105,8 @@ def test_each_bad_input_is_refused_in_one_line_before_anything_is_written(world,
              (["transfer", str(episode), "--model", str(not_transfer), "--look", "dim"], "not a transfer checkpoint"),
              (base + ["--look", "dim", "--camera", "wrist"], "camera 'wrist' is not one of the episode's"),
              (base + ["--look", "dim", "--weights", "normals=1"], "--weights: 'normals=1'"),
+             (["transfer", str(episode), "--model", "abcdef123456", "--look", "dim"],
+              "--model: transfer model abcdef123456: no transfer model checkpoint with that id in lineage"),
              (["transfer", str(tmp_path / "nothing"), "--model", str(model), "--look", "dim"],
               "nothing: no such file or folder"),
              (["train-transfer", str(world[1]), "--camera", "wrist"], "--camera: camera 'wrist' is not in manifest"),
@@ -142,8 +144,11 @@ def test_train_transfer_records_a_transfer_model_that_transfer_runs(world):
     again = runner.invoke(app, args)
     assert again.exit_code == 0 and "trained before" in again.output, again.output
 
-    done = runner.invoke(app, ["transfer", str(manifest), "--model", str(weights.parent), "--look", "textures"])
+    done = runner.invoke(app, ["transfer", str(manifest), "--look", "textures"])  # the newest trained model
     assert done.exit_code == 0 and "1 clips written" in done.output, done.output
     assert query("SELECT e.parent_id FROM edges e JOIN artifacts c ON c.artifact_id = e.child_id "
                  "WHERE e.relation = 'transferred_by' AND c.attrs->>'look' = 'textures'") == [(model_id,)]
+    by_id = runner.invoke(app, ["transfer", str(episode), "--model", model_id[:12], "--look", "textures"])
+    assert by_id.exit_code == 0 and "0 clips written, 1 done before" in by_id.output, by_id.output
+    assert weights.parent.name == model_id
 
