@@ -1,5 +1,6 @@
 """A smoke run of the transfer model (docs/transfer.md): simulator pairs of a manifest, a short
-training of a preset, free-running PSNR per look on a held-out seed. Prints JSON lines.
+training of a preset, free-running PSNR per look on a held-out seed (for a preset with
+reference conditioning, such as small-ref, also given a reference clip). Prints JSON lines.
 
     .venv/bin/python bench/transfer_smoke.py --seconds 100 --out /tmp/transfer-smoke
 """
@@ -56,6 +57,15 @@ def main(argv: list[str] | None = None) -> None:
     history = train_transfer(model, pairs, config, on_log=lambda r: print(json.dumps(r), flush=True))
     print(json.dumps({"held_out_psnr_after": evaluate(model, held, frames=args.eval_frames),
                       "train_psnr_after": evaluate(model, pairs, frames=args.eval_frames)}), flush=True)
+    if model.config.reference:
+        # The look from a reference clip: the held-out seed's own stressed render (its colours
+        # exactly) and a training seed's render of the same look (another draw of that look).
+        own = {(p.seed, p.prompt): p.frames for p in held}
+        other = {p.prompt: p.frames for p in pairs if p.seed == args.seeds[0]}
+        print(json.dumps({
+            "held_out_psnr_reference_own": evaluate(model, held, args.eval_frames, lambda p: own[p.seed, p.prompt]),
+            "held_out_psnr_reference_other_seed": evaluate(model, held, args.eval_frames, lambda p: other[p.prompt]),
+        }), flush=True)
     if args.out:
         save_transfer(model, args.out, config, history)
 

@@ -6,7 +6,10 @@ With probability ``self_feed`` a window's previous frames are instead the model'
 (made without gradient from the teacher-forced pass), so it learns to continue from frames it
 made, as it must when it generates a clip. Each control is dropped (weight 0) with
 probability ``control_dropout`` per window, so any subset of controls, as a user's weights
-choose, is a input the model has seen.
+choose, is a input the model has seen. A model with reference conditioning is given the
+colour statistics of the window's whole target clip as its reference (so it learns to take
+the look a reference shows), and none with probability ``reference_dropout`` (so the prompt
+alone still works).
 
 Pure: pairs in, a trained model and its history out; the checkpoint helpers write and read
 ``model.safetensors`` + ``config.json`` (`tasks.checkpoint_files`).
@@ -22,7 +25,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from models.transfer import TransferConfig, TransferNet, preset
+from models.transfer import TransferConfig, TransferNet, preset, reference_features
 from tasks.checkpoint_files import load_weights, model_config, read_config, write_checkpoint
 from tasks.device import Runtime, autocast, prepare
 from tasks.tokenize.train import lr_at, psnr
@@ -42,6 +45,8 @@ class TrainConfig(BaseModel):
     clip_frames: int = Field(4, ge=1)
     self_feed: float = Field(0.25, ge=0, le=1, description="chance a window's previous frames are the model's own")
     control_dropout: float = Field(0.2, ge=0, le=1, description="chance each control gets weight 0 in a window")
+    reference_dropout: float = Field(0.3, ge=0, le=1, description="chance a window has no reference clip "
+                                     "(models with reference conditioning)")
     lr: float = Field(2e-3, gt=0)
     warmup_steps: int = Field(20, ge=0)
     min_lr_ratio: float = Field(0.05, ge=0, le=1)
@@ -60,8 +65,12 @@ def pair_tensors(pair: PairClip, config: TransferConfig) -> tuple[torch.Tensor, 
         .float().movedim(-1, 0),
     }
     controls = torch.cat([parts[name] for name in config.controls], 0)
-    target = torch.from_numpy(pair.frames).float().div(127.5).sub(1).movedim(-1, 0)
-    return controls, target
+    return controls, frames_tensor(pair.frames)
+
+
+def frames_tensor(frames: np.ndarray) -> torch.Tensor:
+    """F x H x W x 3 uint8 -> ``3 x F x H x W`` float in [-1, 1]."""
+    return torch.from_numpy(frames).float().div(127.5).sub(1).movedim(-1, 0)
 
 
 class PairSet:
@@ -71,22 +80,32 @@ class PairSet:
         if not pairs:
             raise ValueError("no pairs to train on")
         self.items = [(*pair_tensors(p, config), config.prompt_index(p.prompt)) for p in pairs]
+        self.looks = [reference_features(target[None])[0] for _, target, _ in self.items] if config.reference else None
         self.controls = len(config.controls)
 
-    def sample(self, frames: int, batch: int, gen: torch.Generator, dropout: float = 0.0):
-        """(controls ``B x C x T x H x W``, target ``B x 3 x T x H x W``, prompts ``B``, weights ``B x n``)."""
-        usable = [i for i in self.items if i[0].shape[1] >= frames]
+    def sample(self, frames: int, batch: int, gen: torch.Generator, dropout: float = 0.0,
+               reference_dropout: float = 0.0):
+        """(controls ``B x C x T x H x W``, target ``B x 3 x T x H x W``, prompts ``B``, weights
+        ``B x n``, references ``B x REFERENCE_FEATURES`` with NaN rows for none, or None for a
+        model without reference conditioning)."""
+        usable = [i for i, item in enumerate(self.items) if item[0].shape[1] >= frames]
         if not usable:
             raise ValueError(f"no pair has {frames} frames")
-        cs, ts, ps = [], [], []
+        cs, ts, ps, picked = [], [], [], []
         for _ in range(batch):
-            controls, target, prompt = usable[int(torch.randint(len(usable), (1,), generator=gen))]
+            index = usable[int(torch.randint(len(usable), (1,), generator=gen))]
+            controls, target, prompt = self.items[index]
             t0 = int(torch.randint(controls.shape[1] - frames + 1, (1,), generator=gen))
             cs.append(controls[:, t0:t0 + frames])
             ts.append(target[:, t0:t0 + frames])
             ps.append(prompt)
+            picked.append(index)
         weights = (torch.rand(batch, self.controls, generator=gen) >= dropout).float()
-        return torch.stack(cs), torch.stack(ts), torch.tensor(ps), weights
+        references = None
+        if self.looks is not None:
+            references = torch.stack([self.looks[i] for i in picked])
+            references[torch.rand(batch, generator=gen) < reference_dropout] = float("nan")
+        return torch.stack(cs), torch.stack(ts), torch.tensor(ps), weights, references
 
 
 def train_transfer(model: TransferNet, pairs: Sequence[PairClip], config: TrainConfig,
@@ -125,16 +144,16 @@ def train_transfer(model: TransferNet, pairs: Sequence[PairClip], config: TrainC
         progress = max(step / config.steps, trained / config.seconds if config.seconds else 0.0)
         for group in opt.param_groups:
             group["lr"] = lr_at(config, step, progress)
-        controls, target, prompts, weights = (x.to(device) for x in data.sample(
-            config.clip_frames, config.batch_size, gen, config.control_dropout))
+        controls, target, prompts, weights, references = (None if x is None else x.to(device) for x in data.sample(
+            config.clip_frames, config.batch_size, gen, config.control_dropout, config.reference_dropout))
         own = torch.rand(config.batch_size, generator=gen) < config.self_feed
         previous = target
         with autocast(runtime, device):
             if own.any():
                 with torch.no_grad():
-                    made = call(controls, prompts, weights, previous=target).float()
+                    made = call(controls, prompts, weights, previous=target, reference=references).float()
                 previous = torch.where(own.to(device)[:, None, None, None, None], made, target)
-            out = call(controls, prompts, weights, previous=previous)
+            out = call(controls, prompts, weights, previous=previous, reference=references)
         loss = (out.float() - target).abs().mean()
         opt.zero_grad(set_to_none=True)
         loss.backward()
@@ -154,9 +173,12 @@ def train_transfer(model: TransferNet, pairs: Sequence[PairClip], config: TrainC
 
 
 @torch.no_grad()
-def evaluate(model: TransferNet, pairs: Sequence[PairClip], frames: int | None = None) -> dict[str, float]:
+def evaluate(model: TransferNet, pairs: Sequence[PairClip], frames: int | None = None,
+             reference: Callable[[PairClip], np.ndarray | None] | None = None) -> dict[str, float]:
     """Mean PSNR (dB) per prompt of clips made frame by frame from the model's own previous
-    frames (as generation runs), against the stressed rollouts' frames; the first ``frames``."""
+    frames (as generation runs), against the stressed rollouts' frames; the first ``frames``.
+    ``reference(pair)``: the frames (F x H x W x 3 uint8) of a clip whose look the model is to
+    take for that pair, or None (the prompt alone)."""
     model.eval()
     device = next(model.parameters()).device
     by_prompt: dict[str, list[float]] = {}
@@ -165,7 +187,9 @@ def evaluate(model: TransferNet, pairs: Sequence[PairClip], frames: int | None =
         if frames:
             controls, target = controls[:, :frames], target[:, :frames]
         prompt = torch.tensor([model.config.prompt_index(pair.prompt)], device=device)
-        out = model(controls[None].to(device), prompt).cpu()
+        look = reference(pair) if reference else None
+        features = None if look is None else reference_features(frames_tensor(look)[None]).to(device)
+        out = model(controls[None].to(device), prompt, reference=features).cpu()
         by_prompt.setdefault(pair.prompt, []).append(psnr(target[None], out).item())
     return {k: float(np.mean(v)) for k, v in by_prompt.items()}
 

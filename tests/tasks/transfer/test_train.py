@@ -1,5 +1,5 @@
-"""Training the transfer model: the loss falls on a tiny pair set, runs are seeded, and a
-checkpoint round-trips. Pairs are synthetic (no simulator): the target is the blur control
+"""Training the transfer model: the loss falls on a tiny pair set, runs are seeded, a
+reference clip teaches a look the prompt cannot name, and a checkpoint round-trips. Pairs are synthetic (no simulator): the target is the blur control
 recoloured per prompt, so the mapping is learnable in a few steps."""
 
 import numpy as np
@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from tasks.checkpoint_files import CheckpointError
-from models.transfer import PROMPTS, preset
+from models.transfer import PROMPTS, TransferNet, preset, reference_features
 from tasks.transfer.pairs import LOOKS, SEG_CLASSES, PairClip
 from tasks.transfer.train import PairSet, TrainConfig, evaluate, load_transfer, new_model, save_transfer, train_transfer
 
@@ -59,7 +59,8 @@ def test_same_seed_same_history():
 def test_batches_drop_controls_and_keep_windows_aligned():
     pairs = _pairs()
     data = PairSet(pairs, new_model(CONFIG).config)
-    controls, target, prompts, weights = data.sample(3, 64, torch.Generator().manual_seed(0), dropout=0.5)
+    controls, target, prompts, weights, references = data.sample(3, 64, torch.Generator().manual_seed(0), dropout=0.5)
+    assert references is None  # the model has no reference conditioning
     assert controls.shape[:3] == (64, data.items[0][0].shape[0], 3) and target.shape == (64, 3, 3, 16, 16)
     assert 0.3 < weights.mean() < 0.7 and set(weights.unique().tolist()) == {0.0, 1.0}
     with pytest.raises(ValueError, match="no pair has 7 frames"):
@@ -76,3 +77,35 @@ def test_checkpoint_round_trip(trained, tmp_path):
     (tmp_path / "model.safetensors").write_bytes(b"not weights")
     with pytest.raises(CheckpointError, match="unreadable weights"):
         load_transfer(tmp_path)
+
+
+def _shifted_pairs(seeds=4, side=16, frames=6):
+    """'colour shift' pairs whose tint is a different random draw per seed, as the simulator's
+    colour jitter is: the prompt alone cannot say which tint a clip should get."""
+    rng = np.random.default_rng(1)
+    out = []
+    for seed in range(seeds):
+        blur = rng.integers(0, 256, (frames, side, side, 3), dtype=np.uint8)
+        target = (blur * rng.uniform(0.1, 1.0, 3)).astype(np.uint8)
+        out.append(PairClip(prompt="colour shift", seed=seed, camera="cam", edges=np.zeros((frames, side, side), np.uint8),
+                            blur=blur, depth_mm=np.full((frames, side, side), 1000, np.uint16),
+                            seg=np.zeros((frames, side, side), np.uint8), frames=target,
+                            source_pose=np.zeros((1, 1, 7)), target_pose=np.zeros((1, 1, 7))))
+    return out
+
+
+def test_a_reference_clip_teaches_a_look_the_prompt_cannot_name():
+    config = CONFIG.model_copy(update={"steps": 120, "reference_dropout": 0.3})
+    torch.manual_seed(config.seed)
+    model = TransferNet(preset("tiny").model_copy(update={"reference": True}))
+    pairs = _shifted_pairs()
+    data = PairSet(pairs, model.config)
+    *_, references = data.sample(3, 200, torch.Generator().manual_seed(0), reference_dropout=0.3)
+    dropped = references.isnan().any(1)
+    assert 0.15 < dropped.float().mean() < 0.45
+    looks = torch.stack([reference_features(t[None])[0] for _, t, _ in data.items])
+    assert all(any(torch.equal(r, look) for look in looks) for r in references[~dropped])
+    train_transfer(model, pairs, config)
+    with_reference = evaluate(model, pairs, frames=3, reference=lambda p: p.frames)["colour shift"]
+    prompt_only = evaluate(model, pairs, frames=3)["colour shift"]
+    assert with_reference > prompt_only + 1.0, (with_reference, prompt_only)
