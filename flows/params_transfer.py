@@ -69,8 +69,11 @@ class TransferParams(DeviceParams):
                                                  "else the episode's first)")
     weights: str | None = Field(None, description="control weights, e.g. edges=1,blur=1,depth=0,segmentation=1 "
                                                   "(1 where not given; 0 removes a control)")
+    reference: str | None = Field(None, description="a video (e.g. a curated clip) whose look, its colour statistics, "
+                                                    "the output takes beside the look's word (models trained "
+                                                    "with reference clips: preset small-ref)")
     cli_arguments = ("source",)
-    cli_paths = ("model",)
+    cli_paths = ("model", "reference")
 
     @model_validator(mode="after")
     def _words(self):
@@ -97,6 +100,7 @@ class TransferParams(DeviceParams):
         from tasks.lookup import is_hex_id
         from tasks.manifests import ManifestError
         from tasks.transfer.apply import episode_source, model_info, parse_looks, parse_weights
+        from tasks.video import DecodeError, probe
         from tasks.world.inputs import episode_folders
 
         try:
@@ -107,6 +111,14 @@ class TransferParams(DeviceParams):
                     raise CheckpointError(f"{folder}: the model has no look {missing[0]!r}")
             except (CheckpointError, FileNotFoundError) as exc:
                 raise Refused(f"{{model}}: {exc}") from None
+            if self.reference is not None:
+                if not config.reference:
+                    raise Refused(f"{{reference}}: the model {folder} was not trained with reference clips "
+                                  "(train it with --preset small-ref)")
+                try:
+                    probe(self.reference)
+                except DecodeError as exc:
+                    raise Refused(f"{{reference}}: {exc}") from None
             weights = parse_weights(self.weights)
             if not Path(self.source).exists() and not is_hex_id(self.source):
                 raise Refused(f"{{source}} {self.source}: no such file or folder, and not a manifest hash")

@@ -17,7 +17,7 @@ from flows.recording import recorded_run
 from flows.report import markdown_table, publish
 from models.transfer import preset
 from schemas import paths
-from schemas.hashing import content_hash, stable_id
+from schemas.hashing import content_hash, sha256_file, stable_id
 from schemas.settings import Settings
 from tasks import manifests
 from tasks.checkpoint_files import WEIGHTS_FILE
@@ -87,11 +87,11 @@ def train_transfer(manifest: str, seeds: str = "4", preset_name: str = "small", 
 
 @flow(name="transfer", log_prints=True)
 def transfer(source: str, look: str, model: str | None = None, camera: str | None = None,
-             weights: str | None = None, device: str | None = None) -> dict:
+             weights: str | None = None, reference: str | None = None, device: str | None = None) -> dict:
     """Each camera clip of ``source`` (an episode folder, or a manifest YAML or hash: every episode
     simulated of it) in each look of ``look`` by transfer checkpoint ``model`` (a folder, an id,
-    or the newest trained), controls weighted by ``weights``; the labels copied unchanged beside
-    each clip."""
+    or the newest trained), controls weighted by ``weights``, taking ``reference``'s look if given;
+    the labels copied unchanged beside each clip."""
     checks = TransferParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
@@ -100,11 +100,14 @@ def transfer(source: str, look: str, model: str | None = None, camera: str | Non
     where = checks.torch_device()
     written, done = [], 0
     params = {"source": source, "model": str(folder), "look": list(looks), "camera": camera,
-              "weights": control_weights}
+              "weights": control_weights, "reference": reference}
+    look_of, reference_sha = None, None
+    if reference:
+        look_of, reference_sha = apply.reference_look(reference, size), sha256_file(reference)
     with recorded_run("transfer", settings, params=params) as run:
         model_in = lineage.model_inputs(run.warehouse, root, folder)  # its bytes checked before it is loaded
         net = train.load_transfer(folder).to(where)
-        setting = apply.setting_id(model_in.model_sha, control_weights)
+        setting = apply.setting_id(model_in.model_sha, control_weights, reference_sha)
         for src in sources:
             inputs = lineage.episode_inputs(run.warehouse, root, model_in, src.video, src.controls)
             clip = None
@@ -116,14 +119,15 @@ def transfer(source: str, look: str, model: str | None = None, camera: str | Non
                     done += 1
                     continue
                 clip = clip if clip is not None else make_controls(src, size)
-                frames, faces = generate(net, clip, name, control_weights, TRANSFER_GUARD, where)
+                frames, faces = generate(net, clip, name, control_weights, TRANSFER_GUARD, where, look_of)
                 video = write_video(out["video"], frames, apply.fps_of(src.video))
                 apply.write_labels(src, out, root, {"look": name, "model_id": inputs.model_id, "size": size,
-                                                    "weights": control_weights})
+                                                    "weights": control_weights, "reference_sha256": reference_sha})
                 _, batch = lineage.transferred_lineage(
                     video, key, inputs, root, stage.id, stage.manifest_hash, name, faces, TRANSFER_GUARD,
                     {"camera": src.camera, "index": src.meta.get("index"), "frames": len(frames), "size": size,
-                     "weights": control_weights, "source_episode": paths.escaped(str(src.folder))})
+                     "weights": control_weights, "source_episode": paths.escaped(str(src.folder)),
+                     "reference_sha256": reference_sha})
                 stage.finish(1, 1, batch, attrs={"look": name, "camera": src.camera, "video": out["video"].name})
                 written.append(video)
         summary = (f"{len(sources)} episodes x {len(looks)} looks: {len(written)} clips written, "

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from models.transfer import CONTROL_KINDS, PROMPTS, TransferConfig, TransferNet
+from models.transfer import CONTROL_KINDS, PROMPTS, TransferConfig, TransferNet, reference_features
 from schemas import paths
 from schemas.hashing import stable_id
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError, model_config, read_config
@@ -31,7 +31,7 @@ from tasks.guard.config import GuardConfig
 from tasks.guard.faces import FaceDecision, guard_frames
 from tasks.integrity import uri_of
 from tasks.transfer.pairs import PairClip, resize_frames, seg_classes
-from tasks.transfer.train import CHECKPOINT_KEY, checkpoint_size, pair_tensors
+from tasks.transfer.train import CHECKPOINT_KEY, checkpoint_size, frames_tensor, pair_tensors
 from tasks.video.read import display_frames, probe
 
 # Part of every transfer stage's key: a change to how clips are made makes new files.
@@ -141,19 +141,30 @@ def source_clip(source: EpisodeSource, size: int) -> PairClip:
 
 @torch.no_grad()
 def generate(model: TransferNet, clip: PairClip, look: str, weights: dict[str, float],
-             device: torch.device | str = "cpu") -> np.ndarray:
-    """The clip in ``look``: F x H x W x 3 uint8, frame by frame from the model's own previous frame."""
+             device: torch.device | str = "cpu", reference: torch.Tensor | None = None) -> np.ndarray:
+    """The clip in ``look``: F x H x W x 3 uint8, frame by frame from the model's own previous
+    frame; ``reference``: ``reference_look`` of a clip whose look it is to take, or None."""
     config = model.config
     controls, _ = pair_tensors(clip, config)
     prompt = torch.tensor([config.prompt_index(look)], device=device)
     w = torch.tensor([[weights[c] for c in config.controls]], dtype=torch.float32, device=device)
-    out = model(controls[None].to(device), prompt, w)[0].float().cpu()
+    ref = None if reference is None else reference.to(device)
+    out = model(controls[None].to(device), prompt, w, reference=ref)[0].float().cpu()
     return out.add(1).mul(127.5).round().clamp(0, 255).to(torch.uint8).permute(1, 2, 3, 0).numpy()
 
 
-def setting_id(model_sha: str, weights: dict[str, float]) -> str:
-    """What tells two transfers of one look apart: the model's weights and the control weights."""
-    return stable_id("transfer_setting", model_sha, json.dumps(weights, sort_keys=True))
+def reference_look(video: Path | str, size: int) -> torch.Tensor:
+    """``1 x REFERENCE_FEATURES``: the colour statistics of a reference video's frames (display
+    orientation) at ``size`` x ``size``, as the model saw its training clips."""
+    frames = resize_frames(np.stack(list(display_frames(Path(video)))), size)
+    return reference_features(frames_tensor(frames)[None])
+
+
+def setting_id(model_sha: str, weights: dict[str, float], reference_sha: str | None = None) -> str:
+    """What tells two transfers of one look apart: the model's weights, the control weights and
+    the reference clip's bytes, if any."""
+    return stable_id("transfer_setting", model_sha, json.dumps(weights, sort_keys=True),
+                     *([reference_sha] if reference_sha else []))
 
 
 def stage_key(video_sha: str, camera: str, look: str, setting: str, size: int) -> str:
@@ -185,7 +196,8 @@ def fps_of(video: Path) -> float:
 
 
 def guarded_clip(model: TransferNet, clip: PairClip, look: str, weights: dict[str, float], guard: GuardConfig,
-                 device: torch.device | str = "cpu") -> tuple[np.ndarray, list[FaceDecision]]:
+                 device: torch.device | str = "cpu", reference: torch.Tensor | None = None
+                 ) -> tuple[np.ndarray, list[FaceDecision]]:
     """`generate`, then the face post-guard over the frames (as panels guard theirs before writing)."""
-    frames = generate(model, clip, look, weights, device)
+    frames = generate(model, clip, look, weights, device, reference)
     return guard_frames(frames, guard) if guard.enabled else (frames, [])

@@ -110,6 +110,8 @@ def test_each_bad_input_is_refused_in_one_line_before_anything_is_written(world,
              (["transfer", str(tmp_path / "nothing"), "--model", str(model), "--look", "dim"],
               "nothing: no such file or folder"),
              (["train-transfer", str(world[1]), "--camera", "wrist"], "--camera: camera 'wrist' is not in manifest"),
+             (base + ["--look", "dim", "--reference", str(episode / "side.mp4")],
+              "--reference: the model " + str(model)),
              (["transfer", str(shifted), "--model", str(model), "--look", "dim"], "side.depth.npz: ")]
     before = sorted(p for p in (root / "transfer").rglob("*")) if (root / "transfer").exists() else []
     runs = query("SELECT count(*) FROM runs")

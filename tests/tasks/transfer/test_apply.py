@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from models.transfer import CONTROL_KINDS
+from models.transfer import CONTROL_KINDS, REFERENCE_FEATURES, TransferNet, preset
 from tasks.checkpoint_files import CheckpointError
 from tasks.controls.check import ControlError
 from tasks.controls.files import write_rendered
@@ -132,3 +132,19 @@ def test_outputs_are_their_own_folder_per_look_and_setting(episode, tmp_path):
     assert a["steps.parquet"].read_bytes() == b"steps"
     assert a["meta.json"].read_bytes() == (folder / "meta.json").read_bytes()
     assert json.loads(a["info"].read_text())["look"] == "very dim"
+
+
+def test_a_reference_video_gives_its_look_and_its_own_setting(episode):
+    folder, _ = episode
+    torch.manual_seed(0)
+    net = TransferNet(preset("tiny").model_copy(update={"reference": True})).eval()
+    weights = apply.parse_weights(None)
+    clip = apply.source_clip(apply.episode_source(folder, None, weights), SIDE)
+    bright = write_video(folder.parent / "bright.mp4", [np.full((48, 64, 3), 230, np.uint8)] * 3, fps=10)
+    dark = write_video(folder.parent / "dark.mp4", [np.full((48, 64, 3), 20, np.uint8)] * 3, fps=10)
+    looks = {name: apply.reference_look(path, SIDE) for name, path in (("bright", bright), ("dark", dark))}
+    assert looks["bright"].shape == (1, REFERENCE_FEATURES) and looks["bright"][0, 0] > 0.7 > -0.7 > looks["dark"][0, 0]
+    made = {name: apply.generate(net, clip, "dim", weights, reference=look) for name, look in looks.items()}
+    assert not np.array_equal(made["bright"], made["dark"])
+    assert not np.array_equal(made["bright"], apply.generate(net, clip, "dim", weights))
+    assert apply.setting_id("m" * 64, weights, "r" * 64) != apply.setting_id("m" * 64, weights)
