@@ -80,7 +80,16 @@ def _spawn(args: list, root: Path, api: str, prefix: list[str] = (), **extra: st
     which execs it, so the group's leader is the command)."""
     return subprocess.Popen([*prefix, str(REPO / ".venv" / "bin" / "python"), "-m", "flows.cli", *map(str, args)],
                             env=_env(root, api, **extra), cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True, preexec_fn=_terminal_signals)
+
+
+def _terminal_signals() -> None:
+    """SIGINT and SIGQUIT as a terminal leaves them. A shell without job control starts a
+    background job (``bench/reliability.py &``) with both ignored, its children inherit that,
+    and a worldline command keeps an ignored SIGINT ignored, as it should for such a job: the
+    interrupt step would then measure how the bench was started, not the command."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGQUIT, signal.SIG_DFL)
 
 
 def _last_line(text: str) -> str:
