@@ -9,6 +9,11 @@ threshold. docs/transfer.md has the definitions.
 
     .venv/bin/python bench/transfer.py --model /work/runs/transfer-small-45m \\
         --manifest manifests/push_closeup.yaml --seeds 40 41 42 43 44
+    .venv/bin/python bench/transfer.py --model /work/runs/transfer-smallref-45m --reference other
+
+``--reference`` (models trained with reference clips, preset small-ref): each look is also
+given a reference clip in that look, the next held-out seed's true render (``other``: a clip
+of the look, not the answer) or the seed's own (``own``: its colours exactly).
 """
 
 from __future__ import annotations
@@ -32,7 +37,8 @@ from tasks.manifests import load  # noqa: E402
 from tasks.panels.detect import track_package  # noqa: E402
 from tasks.transfer import metrics  # noqa: E402
 from tasks.transfer.pairs import LOOKS, PairClip, make_pairs  # noqa: E402
-from tasks.transfer.train import load_transfer, pair_tensors  # noqa: E402
+from models.transfer import reference_features  # noqa: E402
+from tasks.transfer.train import frames_tensor, load_transfer, pair_tensors  # noqa: E402
 
 # The issue's targets; COLOUR_KEPT is this bench's (the issue names no number, see docs/transfer.md).
 EDGE_F_MIN = 0.8
@@ -49,11 +55,13 @@ def to_uint8(frames: torch.Tensor) -> np.ndarray:
 
 
 @torch.no_grad()
-def generate(model, pair: PairClip) -> np.ndarray:
-    """The pair's look made free-running (each frame from the model's own previous one)."""
+def generate(model, pair: PairClip, reference: np.ndarray | None = None) -> np.ndarray:
+    """The pair's look made free-running (each frame from the model's own previous one), given
+    the frames of a reference clip in that look if ``reference`` (models trained with them)."""
     controls, _ = pair_tensors(pair, model.config)
     prompt = torch.tensor([model.config.prompt_index(pair.prompt)])
-    return to_uint8(model(controls[None], prompt)[0])
+    look = None if reference is None else reference_features(frames_tensor(reference)[None])
+    return to_uint8(model(controls[None], prompt, reference=look)[0])
 
 
 @torch.no_grad()
@@ -89,10 +97,15 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--horizon", type=float, default=None, help="seconds of each episode (default: the manifest's)")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--speed-runs", type=int, default=3)
+    parser.add_argument("--reference", choices=("none", "own", "other"), default="none",
+                        help="for a model trained with reference clips: the look's reference is the seed's own "
+                             "true render (its colours exactly) or the next held-out seed's render of the look")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)  # Canny, blur and flow on the same one core
     model = load_transfer(args.model)
+    if args.reference != "none" and not model.config.reference:
+        parser.error(f"--reference {args.reference}: {args.model} was not trained with reference clips")
     looks = tuple(args.looks or [p for p in LOOKS if p in model.config.prompts])
     if "nominal" not in looks:
         looks = ("nominal", *looks)  # the source look: its frames are the structure reference
@@ -105,7 +118,7 @@ def main(argv: list[str] | None = None) -> None:
     fps = camera.fps
     print(json.dumps({"model": str(args.model), "config": model.config.name, "seeds": args.seeds, "looks": looks,
                       "frames": int(pairs[0].frames.shape[0]), "size": size, "fps": fps,
-                      "simulate_s": round(time.perf_counter() - started, 1)}), flush=True)
+                      "reference": args.reference, "simulate_s": round(time.perf_counter() - started, 1)}), flush=True)
 
     sources = {p.seed: p for p in pairs if p.prompt == "nominal"}
     per_seed: dict[int, dict] = {}
@@ -117,13 +130,21 @@ def main(argv: list[str] | None = None) -> None:
         per_seed[seed]["clusters"] = metrics.colour_cluster_score(src.frames, src.seg)
         per_seed[seed]["regions"] = metrics.region_colour_score(src.frames, src.seg)
 
+    renders = {(p.seed, p.prompt): p.frames for p in pairs}
+    next_seed = dict(zip(args.seeds, args.seeds[1:] + args.seeds[:1]))
+
+    def reference_of(pair: PairClip) -> np.ndarray | None:
+        if args.reference == "none":
+            return None
+        return renders[pair.seed if args.reference == "own" else next_seed[pair.seed], pair.prompt]
+
     rows: dict[str, dict] = {}
     for look in looks:
         acc = {k: [] for k in ("out_edges", "true_edges", "out_pkg", "true_pkg", "out_cl", "true_cl", "src_cl", "out_rg", "true_rg", "src_rg",
                                 "out_fl", "true_fl", "src_fl", "out_frames", "true_frames", "src_frames")}
         for pair in (p for p in pairs if p.prompt == look):
             s = per_seed[pair.seed]
-            out = generate(model, pair)
+            out = generate(model, pair, reference_of(pair))
             start = pair.source_pose[0, 0, :3]
             record = {"look": look, "seed": pair.seed}
             for name, frames in (("out", out), ("true", pair.frames)):
