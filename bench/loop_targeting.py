@@ -13,10 +13,13 @@ Each arm runs ``--repeats`` times with independent demonstration and training se
 policy is evaluated on the same held-out panel seeds (which no demonstration used). It prints,
 per cell, success before and after for each arm (pooled over repeats) with a bootstrap 95%
 interval over episodes, the gain on the cells that failed against the better control, and
-the wall time.
+the wall time. With several ``--budget`` values it runs every arm at each (an arm's
+demonstrations at a smaller budget are the first ones of its larger budget: derived manifests
+draw seeds in order) and prints the smallest budget at which each arm reaches 0.9 on the cells
+that failed, pooled over repeats.
 
     .venv/bin/python bench/loop_targeting.py [--family push] [--start-episodes 20] [--steps 1500]
-        [--budget 12] [--worst 2] [--repeats 3] [--per-cell 8] [--post-steps 1000]
+        [--budget 12 [24 ...]] [--worst 2] [--repeats 3] [--per-cell 8] [--post-steps 1000]
 """
 
 from __future__ import annotations
@@ -76,7 +79,8 @@ def main() -> None:
     parser.add_argument("--family", default="push", choices=sorted(FAMILIES))
     parser.add_argument("--start-episodes", type=int, default=20)
     parser.add_argument("--steps", type=int, default=1500)
-    parser.add_argument("--budget", type=int, default=12, help="new demonstrations per arm")
+    parser.add_argument("--budget", type=int, nargs="+", default=[12],
+                        help="new demonstrations per arm; several: each arm at each, and the budget to reach 0.9")
     parser.add_argument("--worst", type=int, default=2)
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--per-cell", type=int, default=8)
@@ -96,12 +100,30 @@ def main() -> None:
     print(f"# loop_targeting ({time.strftime('%Y-%m-%d')}): {parent.name}, vision policy on {', '.join(cameras)}; "
           f"start: {args.start_episodes} demonstrations, {args.steps} steps; budget {args.budget} per arm, "
           f"{args.repeats} repeats, post-training {args.post_steps} steps; {args.per_cell} panel seeds per cell")
+    failed = [c for c in ORDER if np.mean(before[c]) < 0.9]
+    reached: dict[str, int | None] = {arm: None for arm in ("targeted", "nominal", "uniform")}
+    for budget in sorted(args.budget):
+        after = run_arms(args, parent, start, spec, variants, grid, before, budget)
+        if failed:
+            for arm, cells in after.items():
+                share = float(np.mean(sum((cells[c] for c in failed), [])))
+                if reached[arm] is None and share >= 0.9:
+                    reached[arm] = budget
+    if failed and len(args.budget) > 1:
+        print(f"\nbudget to reach 0.9 on the cells that failed ({', '.join(failed)}): "
+              + ", ".join(f"{arm} {b if b is not None else f'not by {max(args.budget)}'}" for arm, b in reached.items()))
+    print(f"bench wall time {time.perf_counter() - started:.0f} s")
+
+
+def run_arms(args, parent, start, spec, variants, grid, before, budget: int) -> dict[str, dict[str, list[bool]]]:
+    """Every arm at one budget, ``--repeats`` times: per arm and cell the outcomes after, pooled;
+    prints the table and the gain on the cells that failed."""
     after: dict[str, dict[str, list[bool]]] = {arm: {c: [] for c in ORDER} for arm in ("targeted", "nominal", "uniform")}
     targeted_cells: list[str] = []
     scratch = tempfile.mkdtemp(prefix="loop_targeting_")
     for r in range(args.repeats):
         for k, arm in enumerate(after):
-            made, counts = arm_manifests(arm, parent, grid, before, args.budget, args.worst, NEW + 1000 * (3 * r + k))
+            made, counts = arm_manifests(arm, parent, grid, before, budget, args.worst, NEW + 1000 * (3 * r + k))
             if arm == "targeted":
                 targeted_cells = [m.name.rsplit("--", 1)[1] for m in made]
             new = posttrain.demonstrations(parent, start, made, counts, note=lambda line: print(f"  {line}"))
@@ -110,9 +132,11 @@ def main() -> None:
                                  parent, {})
             for cell, outcomes in evaluate(spec, variants, vision.VisionPolicy.from_checkpoint(folder)).items():
                 after[arm][cell] += outcomes
-            print(f"  repeat {r}, {arm}: {sum(counts)} new demonstrations in {', '.join(m.name for m in made)}", flush=True)
+            print(f"  budget {budget}, repeat {r}, {arm}: {sum(counts)} new demonstrations in "
+                  f"{', '.join(m.name for m in made)}", flush=True)
     shutil.rmtree(scratch, ignore_errors=True)
     rng = np.random.default_rng(0)
+    print(f"\nbudget {budget} new demonstrations per arm")
     print("\n| cell | before | targeted | nominal | uniform |\n|---|---|---|---|---|")
     for cell in ORDER:
         row = [cell + (" (targeted)" if cell in targeted_cells else "")]
@@ -127,7 +151,7 @@ def main() -> None:
         print(f"\ncells that failed (before < 0.9): {', '.join(failed)}; gain there: "
               + ", ".join(f"{arm} {g:+.2f}" for arm, g in gains.items())
               + f"; targeted minus the better control {gains['targeted'] - max(gains['nominal'], gains['uniform']):+.2f}")
-    print(f"bench wall time {time.perf_counter() - started:.0f} s")
+    return after
 
 
 if __name__ == "__main__":
