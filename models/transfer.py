@@ -31,8 +31,11 @@ TRANSFER_SCHEMA_VERSION = 1
 # one): training pairs exist for exactly these. "warm light" is not among them: the scene
 # scales its lights' intensity only, it cannot tint them.
 PROMPTS: tuple[str, ...] = ("nominal", "dim", "very dim", "colour shift", "textures")
-CONTROL_KINDS = ("edges", "blur", "depth", "segmentation")
-ControlKind = Literal["edges", "blur", "depth", "segmentation"]
+CONTROL_KINDS = ("edges", "blur", "depth", "segmentation")  # Cosmos-Transfer's controls, the default
+# "frame": the source look's own frame, a blur of sigma 0. Opt-in (preset small-frame): with it
+# the model restyles the source's pixels, where the four above make them anew.
+ControlKind = Literal["edges", "blur", "depth", "segmentation", "frame"]
+ALL_CONTROLS = (*CONTROL_KINDS, "frame")
 
 
 class TransferConfig(BaseModel):
@@ -59,7 +62,7 @@ class TransferConfig(BaseModel):
         return self
 
     def channels_of(self, control: str) -> int:
-        return {"edges": 1, "blur": 3, "depth": 1, "segmentation": self.seg_classes}[control]
+        return {"edges": 1, "blur": 3, "depth": 1, "segmentation": self.seg_classes, "frame": 3}[control]
 
     @property
     def control_channels(self) -> int:
@@ -226,6 +229,9 @@ PRESETS: dict[str, TransferConfig] = {
     "small": TransferConfig(name="small", channels=(16, 32, 64), prompt_dim=32, groups=8),
     # The same, also conditioned on a reference clip's colour statistics (about 2K parameters more).
     "small-ref": TransferConfig(name="small-ref", channels=(16, 32, 64), prompt_dim=32, groups=8, reference=True),
+    # small-ref that also sees the source look's own frame (the "frame" control).
+    "small-frame": TransferConfig(name="small-frame", controls=ALL_CONTROLS, channels=(16, 32, 64), prompt_dim=32,
+                                  groups=8, reference=True),
 }
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from models.transfer import CONTROL_KINDS, PROMPTS, TransferConfig, TransferNet, reference_features
+from models.transfer import ALL_CONTROLS, PROMPTS, TransferConfig, TransferNet, reference_features
 from schemas import paths
 from schemas.hashing import stable_id
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError, model_config, read_config
@@ -52,13 +52,14 @@ def parse_looks(text: str) -> tuple[str, ...]:
 
 
 def parse_weights(text: str | None) -> dict[str, float]:
-    """``edges=1,blur=0.5`` -> a weight per control of CONTROL_KINDS (1 where not given)."""
-    weights = dict.fromkeys(CONTROL_KINDS, 1.0)
+    """``edges=1,blur=0.5`` -> a weight per control of ALL_CONTROLS (1 where not given; a model
+    reads those of its own controls)."""
+    weights = dict.fromkeys(ALL_CONTROLS, 1.0)
     for part in filter(None, (p.strip() for p in (text or "").split(","))):
         name, eq, value = part.partition("=")
         name = name.strip()
         if name not in weights or not eq:
-            raise ValueError(f"{part!r}: expected CONTROL=WEIGHT with CONTROL one of {', '.join(CONTROL_KINDS)}")
+            raise ValueError(f"{part!r}: expected CONTROL=WEIGHT with CONTROL one of {', '.join(ALL_CONTROLS)}")
         try:
             weights[name] = float(value)
         except ValueError:
@@ -136,7 +137,8 @@ def source_clip(source: EpisodeSource, size: int) -> PairClip:
         seg = resize_frames(seg_classes(ids, legend), size, nearest=True)
     none = np.zeros((0, 0, 7))
     return PairClip(prompt=PROMPTS[0], seed=int(source.meta.get("seed", 0)), camera=source.camera, edges=made["edges"],
-                    blur=made["blur"], depth_mm=depth, seg=seg, frames=frames, source_pose=none, target_pose=none)
+                    blur=made["blur"], depth_mm=depth, seg=seg, frames=frames, source_pose=none, target_pose=none,
+                    source_frames=frames)
 
 
 @torch.no_grad()

@@ -50,7 +50,9 @@ SEG_CLASSES = len(SEG_GROUPS) + 1
 class PairClip:
     """One camera of one seed in one look. Source controls: ``edges`` F x H x W uint8 {0, 255},
     ``blur`` F x H x W x 3 uint8, ``depth_mm`` F x H x W uint16, ``seg`` F x H x W uint8 class
-    in [0, SEG_CLASSES); target ``frames`` F x H x W x 3 uint8 in the look ``prompt``."""
+    in [0, SEG_CLASSES), ``source_frames`` F x H x W x 3 uint8 (the source look's own frames: the
+    ``frame`` control, a blur of sigma 0; None where a clip was made without them); target
+    ``frames`` F x H x W x 3 uint8 in the look ``prompt``."""
 
     prompt: str
     seed: int
@@ -62,6 +64,7 @@ class PairClip:
     frames: np.ndarray
     source_pose: np.ndarray
     target_pose: np.ndarray
+    source_frames: np.ndarray | None = None
 
 
 def source_manifest(parent: ScenarioManifest) -> ScenarioManifest:
@@ -128,5 +131,6 @@ def make_pairs(parent: ScenarioManifest, seeds: list[int] | tuple[int, ...], pro
             episode = nominal if prompt == "nominal" else rollout(look_manifest(parent, prompt), seed)
             pairs.append(PairClip(prompt=prompt, seed=seed, camera=camera, edges=made["edges"], blur=made["blur"],
                                   depth_mm=depth, seg=seg, frames=resize_frames(episode.frames[camera], size),
-                                  source_pose=nominal.object_pose, target_pose=episode.object_pose))
+                                  source_pose=nominal.object_pose, target_pose=episode.object_pose,
+                                  source_frames=frames))
     return pairs

@@ -64,6 +64,11 @@ def pair_tensors(pair: PairClip, config: TransferConfig) -> tuple[torch.Tensor, 
         "segmentation": torch.nn.functional.one_hot(torch.from_numpy(pair.seg).long(), config.seg_classes)
         .float().movedim(-1, 0),
     }
+    if "frame" in config.controls:
+        if pair.source_frames is None:
+            raise ValueError(f"the model takes the source's frames (control 'frame'); clip {pair.prompt!r} of seed "
+                             f"{pair.seed} has none")
+        parts["frame"] = frames_tensor(pair.source_frames)
     controls = torch.cat([parts[name] for name in config.controls], 0)
     return controls, frames_tensor(pair.frames)
 

@@ -32,7 +32,8 @@ def test_shapes_and_range(name):
     x = _controls(model, frames=2, side=side)
     with torch.no_grad():
         y = model(x, torch.tensor([0, len(PROMPTS) - 1]))
-        forced = model(x, torch.tensor([0, 1]), torch.ones(2, 4), previous=torch.zeros(2, 3, 2, side, side))
+        forced = model(x, torch.tensor([0, 1]), torch.ones(2, len(model.config.controls)),
+                       previous=torch.zeros(2, 3, 2, side, side))
     assert y.shape == forced.shape == (2, 3, 2, side, side)
     assert y.abs().max() <= 1
 

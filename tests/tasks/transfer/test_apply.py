@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import torch
 
-from models.transfer import CONTROL_KINDS, REFERENCE_FEATURES, TransferNet, preset
+from models.transfer import ALL_CONTROLS, REFERENCE_FEATURES, TransferNet, preset
 from tasks.checkpoint_files import CheckpointError
 from tasks.controls.check import ControlError
 from tasks.controls.files import write_rendered
@@ -82,7 +82,7 @@ def test_the_clip_has_the_source_frames_at_the_model_size_and_weight_0_removes_a
 
 def test_looks_and_weights_are_parsed_or_refused_in_one_line():
     assert apply.parse_looks("dim, very dim,dim") == ("dim", "very dim")
-    assert apply.parse_weights("edges=0.5, depth=0") == {**dict.fromkeys(CONTROL_KINDS, 1.0), "edges": 0.5,
+    assert apply.parse_weights("edges=0.5, depth=0") == {**dict.fromkeys(ALL_CONTROLS, 1.0), "edges": 0.5,
                                                           "depth": 0.0}
     for text, said in (("sepia", "unknown look 'sepia'"), (" , ", "no look given")):
         with pytest.raises(ValueError, match=said):

@@ -29,8 +29,9 @@ def test_every_look_has_the_source_motion(pairs):
         assert np.array_equal(pair.source_pose, pair.target_pose), pair.prompt
         assert pair.frames.shape == (10, 64, 64, 3) and pair.seg.shape == pair.edges.shape == (10, 64, 64)
         assert pair.seg.max() < SEG_CLASSES
-        for name in ("edges", "blur", "depth_mm", "seg"):  # one set of controls for every look
+        for name in ("edges", "blur", "depth_mm", "seg", "source_frames"):  # one set of controls for every look
             assert getattr(pair, name) is getattr(source, name)
+    assert np.array_equal(source.source_frames, source.frames)  # the frame control: the source look's frames
 
 
 def test_looks_differ_from_the_source_where_the_scene_is(pairs):

@@ -2,6 +2,8 @@
 reference clip teaches a look the prompt cannot name, and a checkpoint round-trips. Pairs are synthetic (no simulator): the target is the blur control
 recoloured per prompt, so the mapping is learnable in a few steps."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -9,7 +11,8 @@ import torch
 from tasks.checkpoint_files import CheckpointError
 from models.transfer import PROMPTS, TransferNet, preset, reference_features
 from tasks.transfer.pairs import LOOKS, SEG_CLASSES, PairClip
-from tasks.transfer.train import PairSet, TrainConfig, evaluate, load_transfer, new_model, save_transfer, train_transfer
+from tasks.transfer.train import (PairSet, TrainConfig, evaluate, frames_tensor, load_transfer, new_model, pair_tensors,
+                                  save_transfer, train_transfer)
 
 TINT = {"nominal": (1.0, 1.0, 1.0), "dim": (0.3, 0.3, 0.3), "colour shift": (1.0, 0.5, 0.2)}
 
@@ -109,3 +112,15 @@ def test_a_reference_clip_teaches_a_look_the_prompt_cannot_name():
     with_reference = evaluate(model, pairs, frames=3, reference=lambda p: p.frames)["colour shift"]
     prompt_only = evaluate(model, pairs, frames=3)["colour shift"]
     assert with_reference > prompt_only + 1.0, (with_reference, prompt_only)
+
+
+def test_the_frame_control_is_the_source_look_s_frames():
+    config = preset("small-frame")
+    pair = _pairs()[1]  # dim: its target differs from the source
+    source = np.full_like(pair.frames, 200)
+    controls, target = pair_tensors(dataclasses.replace(pair, source_frames=source), config)
+    frame = controls[-3:]  # "frame" comes last in ALL_CONTROLS
+    assert config.controls[-1] == "frame" and torch.allclose(frame, torch.full_like(frame, 200 / 127.5 - 1))
+    assert torch.equal(target, frames_tensor(pair.frames))
+    with pytest.raises(ValueError, match="takes the source's frames"):
+        pair_tensors(pair, config)  # made without source frames
