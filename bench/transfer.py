@@ -74,7 +74,8 @@ def time_transfer(model, source: PairClip, frames: np.ndarray, prompt: str) -> f
     started = time.perf_counter()
     made = frame_controls(frames)
     clip = dataclasses.replace(source, prompt=prompt, edges=made["edges"], blur=made["blur"],
-                               depth_mm=source.depth_mm[again], seg=source.seg[again], frames=frames)
+                               depth_mm=source.depth_mm[again], seg=source.seg[again], frames=frames,
+                               source_frames=None if source.source_frames is None else frames)
     controls, _ = pair_tensors(clip, model.config)
     model(controls[None], torch.tensor([model.config.prompt_index(prompt)]))
     return time.perf_counter() - started
