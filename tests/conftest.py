@@ -38,6 +38,8 @@ INTEGRATION_FILES = {
     "tests/tasks/sim/test_segments.py": "simulates and renders footage",
     "tests/tasks/sim/test_stressors.py": "simulates and renders every stressor",
     "tests/tasks/world/test_physics.py": "simulates and renders a push episode",
+    "tests/tasks/transfer/test_pairs.py": "simulates a push episode in every look",
+    "tests/tasks/transfer/test_train.py": "trains transfer models",
 }
 
 # Single tests (every parametrisation) in files whose other tests are unit tests.
