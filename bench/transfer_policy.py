@@ -13,7 +13,7 @@ interval over episodes, each seed's own rate, the gain of the transfer arm over 
 the appearance, dim and distractor cells with a bootstrap interval of the difference, and the
 wall time of each phase.
 
-    .venv/bin/python bench/transfer_policy.py [--model /work/runs/transfer-small-45m] [--episodes 10]
+    .venv/bin/python bench/transfer_policy.py --model /work/runs/transfer-small-45m [--episodes 10]
         [--steps 1000] [--seeds 3] [--per-cell 10] [--control] [--no-rendered]
 """
 
@@ -55,7 +55,7 @@ def diff_interval(a: list[bool], b: list[bool], rng: np.random.Generator, n: int
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--model", default="/work/runs/transfer-small-45m", help="transfer checkpoint folder")
+    parser.add_argument("--model", required=True, help="transfer checkpoint folder (bench/transfer_smoke.py --out, or worldline train-transfer)")
     parser.add_argument("--episodes", type=int, default=10, help="nominal demonstrations N")
     parser.add_argument("--steps", type=int, default=1000)
     parser.add_argument("--seeds", type=int, default=3, help="training seeds per arm")
