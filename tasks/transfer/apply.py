@@ -26,11 +26,10 @@ from schemas.hashing import stable_id
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError, model_config, read_config
 from tasks.controls.check import ControlError, check_controls
 from tasks.controls.files import read_segmentation
-from tasks.controls.video import frame_controls
 from tasks.guard.config import GuardConfig
 from tasks.guard.faces import FaceDecision, guard_frames
 from tasks.integrity import uri_of
-from tasks.transfer.pairs import PairClip, resize_frames, seg_classes
+from tasks.transfer.pairs import PairClip, camera_clip, resize_frames
 from tasks.transfer.train import CHECKPOINT_KEY, checkpoint_size, frames_tensor, pair_tensors
 from tasks.video.read import display_frames, probe
 
@@ -125,20 +124,14 @@ def episode_source(folder: Path, camera: str | None, weights: dict[str, float], 
 def source_clip(source: EpisodeSource, size: int) -> PairClip:
     """The episode camera's controls at ``size`` x ``size`` as training pairs hold them (zeros
     for a control that is not read), its frames resized as the clip's ``frames``."""
-    frames = resize_frames(np.stack(list(display_frames(source.video))), size)
-    made = frame_controls(frames)
-    shape = frames.shape[:3]
-    depth, seg = np.zeros(shape, np.uint16), np.zeros(shape, np.uint8)
+    depth, ids, legend = None, None, ()
     if "depth" in source.controls:
         with np.load(source.controls["depth"], allow_pickle=False) as npz:
-            depth = resize_frames(npz["depth_mm"], size, nearest=True)
+            depth = npz["depth_mm"]
     if "segmentation" in source.controls:
         ids, legend = read_segmentation(source.controls["segmentation"])
-        seg = resize_frames(seg_classes(ids, legend), size, nearest=True)
-    none = np.zeros((0, 0, 7))
-    return PairClip(prompt=PROMPTS[0], seed=int(source.meta.get("seed", 0)), camera=source.camera, edges=made["edges"],
-                    blur=made["blur"], depth_mm=depth, seg=seg, frames=frames, source_pose=none, target_pose=none,
-                    source_frames=frames)
+    return camera_clip(np.stack(list(display_frames(source.video))), size, source.camera,
+                       int(source.meta.get("seed", 0)), depth, ids, legend)
 
 
 @torch.no_grad()

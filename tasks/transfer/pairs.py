@@ -16,6 +16,7 @@ from `tasks.controls.render.Recorder`, resized (nearest for ids).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import cv2
@@ -110,6 +111,23 @@ def depth_signal(depth_mm: np.ndarray) -> np.ndarray:
     return d / far * 2 - 1
 
 
+def camera_clip(frames: np.ndarray, size: int, camera: str, seed: int, depth_mm: np.ndarray | None = None,
+                ids: np.ndarray | None = None, legend: tuple[str, ...] = ()) -> PairClip:
+    """A camera's frames (F x H x W x 3, any size) as a source-look PairClip at ``size``: edges
+    and blur by `frame_controls` of the resized frames, depth (millimetres) and segmentation ids
+    (with their ``legend``) resized nearest, zeros where not given; the frames are its target
+    and its ``source_frames``. How training pairs, `worldline transfer` and demonstration
+    variants all make a model's input."""
+    small = resize_frames(frames, size)
+    made = frame_controls(small)
+    shape = small.shape[:3]
+    depth = np.zeros(shape, np.uint16) if depth_mm is None else resize_frames(depth_mm, size, nearest=True)
+    seg = np.zeros(shape, np.uint8) if ids is None else resize_frames(seg_classes(ids, legend), size, nearest=True)
+    none = np.zeros((0, 0, 7))
+    return PairClip(prompt="nominal", seed=seed, camera=camera, edges=made["edges"], blur=made["blur"], depth_mm=depth,
+                    seg=seg, frames=small, source_pose=none, target_pose=none, source_frames=small)
+
+
 def make_pairs(parent: ScenarioManifest, seeds: list[int] | tuple[int, ...], prompts: tuple[str, ...] = tuple(LOOKS),
                size: int = 64, camera: str | None = None, horizon_s: float | None = None) -> list[PairClip]:
     """One PairClip per seed and prompt, for ``camera`` (default: the primary camera).
@@ -123,14 +141,10 @@ def make_pairs(parent: ScenarioManifest, seeds: list[int] | tuple[int, ...], pro
         recorder = Recorder()
         nominal = rollout(source, seed, on_frame=recorder)
         rendered = recorder.rendered()
-        frames = resize_frames(nominal.frames[camera], size)
-        made = frame_controls(frames)
-        depth = resize_frames(rendered.depth_mm[camera], size, nearest=True)
-        seg = resize_frames(seg_classes(rendered.ids[camera], rendered.legend), size, nearest=True)
+        source = camera_clip(nominal.frames[camera], size, camera, seed, rendered.depth_mm[camera],
+                             rendered.ids[camera], rendered.legend)
         for prompt in prompts:
             episode = nominal if prompt == "nominal" else rollout(look_manifest(parent, prompt), seed)
-            pairs.append(PairClip(prompt=prompt, seed=seed, camera=camera, edges=made["edges"], blur=made["blur"],
-                                  depth_mm=depth, seg=seg, frames=resize_frames(episode.frames[camera], size),
-                                  source_pose=nominal.object_pose, target_pose=episode.object_pose,
-                                  source_frames=frames))
+            pairs.append(dataclasses.replace(source, prompt=prompt, frames=resize_frames(episode.frames[camera], size),
+                                             source_pose=nominal.object_pose, target_pose=episode.object_pose))
     return pairs

@@ -26,13 +26,12 @@ import torch
 from models.transfer import TransferNet, reference_features
 from schemas.manifest import ScenarioManifest
 from tasks.controls.render import Recorder
-from tasks.controls.video import frame_controls
 from tasks.policy.bc import physics_only
 from tasks.policy.vision import VisionDemonstrations
 from tasks.policy.vision_obs import ObservationSpec
 from tasks.sim.episode import rollout
 from tasks.transfer.apply import generate
-from tasks.transfer.pairs import PairClip, look_manifest, resize_frames, seg_classes
+from tasks.transfer.pairs import PairClip, camera_clip, look_manifest, resize_frames
 from tasks.transfer.train import frames_tensor
 
 
@@ -70,20 +69,15 @@ def episode_clips(manifest: ScenarioManifest, demos: VisionDemonstrations, spec:
             continue  # a failed demonstration collect left out
         recorder = Recorder() if rendered else None
         ep = rollout(manifest, seed, on_frame=recorder)
-        frames = resize_frames(ep.frames[camera], size)
-        made = frame_controls(frames)
-        shape = frames.shape[:3]
-        depth, seg = np.zeros(shape, np.uint16), np.zeros(shape, np.uint8)
-        if recorder is not None:
+        if recorder is None:
+            clip = camera_clip(ep.frames[camera], size, camera, seed)
+        else:
             r = recorder.rendered()
-            depth = resize_frames(r.depth_mm[camera], size, nearest=True)
-            seg = resize_frames(seg_classes(r.ids[camera], r.legend), size, nearest=True)
+            clip = camera_clip(ep.frames[camera], size, camera, seed, r.depth_mm[camera], r.ids[camera], r.legend)
+        frames = clip.frames
         index = np.minimum(frame_index(demos.proprio[rows, -1], manifest.horizon_s, seen_fps, cam.fps), len(frames) - 1)
         seen = resize_frames(demos.frames[rows, c].transpose(0, 2, 3, 1), size)
         mismatch = float(np.abs(seen.astype(np.int16) - frames[index].astype(np.int16)).mean())
-        none = np.zeros((0, 0, 7))
-        clip = PairClip(prompt="nominal", seed=seed, camera=camera, edges=made["edges"], blur=made["blur"],
-                        depth_mm=depth, seg=seg, frames=frames, source_pose=none, target_pose=none)
         out.append(EpisodeClip(clip, rows, index, mismatch))
     return out
 
