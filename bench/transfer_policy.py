@@ -137,7 +137,7 @@ def main() -> None:
     stamp = time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())
     rendered = "weight 0" if args.no_rendered else "recorded"
     print(f"\n# transfer_policy ({stamp}): {parent.name}, vision policy on "
-          f"{', '.join(cameras)} at 64 px (seen at 1 fps, as collected); transfer model {args.model} "
+          f"{', '.join(cameras)} at 64 px (seen at the camera's fps, as collected); transfer model {args.model} "
           f"(depth and segmentation {rendered}; reference {args.reference}), looks {', '.join(LOOKS)}; "
           f"N = {len(clips)} demonstrations (seeds {seeds[0]}-{seeds[-1]}); {args.steps} BC steps, batch 64, "
           f"{args.seeds} training seeds per arm; {args.per_cell} held-out panel seeds per cell")

@@ -68,15 +68,6 @@ def require_arm(manifest: ScenarioManifest) -> None:
                          f"embodiment {manifest.embodiment.kind!r} has no arm")
 
 
-def physics_only(manifest: ScenarioManifest) -> ScenarioManifest:
-    """The manifest with its cameras slowed to 1 fps: the same physics (cameras never touch it)
-    at a fraction of the render cost of the episode's videos, which collection and evaluation
-    never read. Resolutions stay, so a vision policy's own renderer has the model's offscreen
-    buffer it needs to see through the manifest's cameras."""
-    cams = tuple(c.model_copy(update={"fps": 1.0}) for c in manifest.cameras)
-    return manifest.model_copy(update={"cameras": cams})
-
-
 class _Recorder:
     """The scripted controller, recording what it sees and the move it commands each step."""
 
@@ -99,9 +90,8 @@ class _Recorder:
 
 def collect(manifest: ScenarioManifest, seeds: Sequence[int], noise: float | None = None,
             successes_only: bool = True, config: SimConfig = SimConfig()) -> Demonstrations:
-    """Scripted episodes of ``seeds`` (physics only); failed ones are left out by default."""
+    """Scripted episodes of ``seeds`` (no episode videos recorded); failed ones are left out by default."""
     require_arm(manifest)
-    fast = physics_only(manifest)
     obs, act, index, outcomes = [], [], [], []
     for k, seed in enumerate(seeds):
         made: list[_Recorder] = []
@@ -110,7 +100,7 @@ def collect(manifest: ScenarioManifest, seeds: Sequence[int], noise: float | Non
             made.append(_Recorder(make_controller(scene, s, noise=noise)))
             return made[-1]
 
-        ep = rollout(fast, seed, config, controller=factory)
+        ep = rollout(manifest, seed, config, controller=factory, record=())
         outcomes.append(bool(ep.success))
         if ep.success or not successes_only:
             rec = made[0]
@@ -235,10 +225,10 @@ class BCPolicy(Policy):
 
 def success_rate(manifest: ScenarioManifest, policy: Policy, seeds: Sequence[int],
                  config: SimConfig = SimConfig()) -> tuple[float, list[tuple[int, bool, str]]]:
-    """Ground-truth success of ``policy`` on ``seeds`` (physics only): rate and (seed, ok, reason)."""
-    fast = physics_only(manifest)
+    """Ground-truth success of ``policy`` on ``seeds`` (no episode videos recorded; a vision
+    policy still sees its cameras at their fps): rate and (seed, ok, reason)."""
     outcomes = []
     for seed in seeds:
-        ep = rollout(fast, seed, config, controller=policy.controller)
+        ep = rollout(manifest, seed, config, controller=policy.controller, record=())
         outcomes.append((seed, bool(ep.success), ep.reason))
     return sum(ok for _, ok, _ in outcomes) / max(1, len(outcomes)), outcomes

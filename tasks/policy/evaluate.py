@@ -22,7 +22,6 @@ from schemas.manifest import ScenarioManifest
 from tasks.panels.detect import judge_frames
 from tasks.panels.world import WorldModelRequest, world_model_rollout, world_text
 from tasks.policy.base import Policy
-from tasks.policy.bc import physics_only
 from tasks.policy.world_env import closed_loop_verdict
 from tasks.sim.episode import rollout
 from tasks.sim.scene import SimConfig
@@ -64,9 +63,9 @@ class Rollout:
 
 def run_episode(variant: ScenarioManifest, cell: str, seed: int, policy: Policy, camera: str | None,
                 config: SimConfig = SimConfig()) -> Rollout:
-    """One episode of ``policy``; with ``camera``, rendered at the contract's cameras and judged
-    from that camera's frames too, else physics only."""
-    ep = rollout(variant if camera else physics_only(variant), seed, config, controller=policy.controller)
+    """One episode of ``policy``; with ``camera``, that camera's frames are recorded and judged
+    too, else no video is recorded (the policy's own cameras are rendered at their fps either way)."""
+    ep = rollout(variant, seed, config, controller=policy.controller, record=(camera,) if camera else ())
     verdict, context = None, None
     if camera:
         frames = ep.frames[camera]

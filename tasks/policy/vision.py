@@ -27,7 +27,7 @@ from schemas.manifest import ScenarioManifest
 from schemas.panel import PanelContract
 from tasks.device import model_device
 from tasks.policy.base import Policy
-from tasks.policy.bc import physics_only, require_arm
+from tasks.policy.bc import require_arm
 from tasks.policy.vision_obs import ObservationSpec, Observer, proprio, proprio_size
 from tasks.sim.control import MAX_STEP, MAX_YAW_STEP, ArmController, make_controller
 from tasks.sim.episode import rollout
@@ -148,10 +148,10 @@ def collect(manifest: ScenarioManifest, seeds: Sequence[int], spec: ObservationS
             successes_only: bool | None = None) -> VisionDemonstrations:
     """The expert's demonstrations on ``seeds`` (its failures left out), or with ``learner`` a
     DAgger round: the learner's episodes, every step labelled by the expert (failures kept:
-    they are where the labels teach most)."""
+    they are where the labels teach most). The episodes' videos are not recorded; the policy's
+    cameras are rendered at the manifest's fps, as in evaluation."""
     require_arm(manifest)
     keep_failures = learner is not None if successes_only is None else not successes_only
-    fast = physics_only(manifest)
     frames, state, act, index, outcomes = [], [], [], [], []
     for k, seed in enumerate(seeds):
         made: list[_Recorder] = []
@@ -161,7 +161,7 @@ def collect(manifest: ScenarioManifest, seeds: Sequence[int], spec: ObservationS
             made.append(_Recorder(scene, s, spec, inner))
             return made[-1]
 
-        ep = rollout(fast, seed, config, controller=factory)
+        ep = rollout(manifest, seed, config, controller=factory, record=())
         outcomes.append(bool(ep.success))
         if ep.success or keep_failures:
             rec = made[0]

@@ -1,13 +1,17 @@
 """Roll out a manifest's task in MuJoCo and judge it from simulator state.
 
 `rollout(manifest, seed)` is pure: the same manifest, seed and config give bit-identical
-arrays and frames (single-threaded MuJoCo, seeded streams, no wall clock). Writing files and
-lineage lives in `tasks.sim.files` and is re-exported here.
+arrays and frames (single-threaded MuJoCo, seeded streams, no wall clock). Cameras never touch
+the physics: `rollout(..., record=())` (no episode videos, as policy collection and evaluation
+roll out) gives the same arrays as a recorded rollout. Writing files and lineage lives in
+`tasks.sim.files` and is re-exported here.
 """
 
 from __future__ import annotations
 
+import contextlib
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Callable, Protocol
 
@@ -46,7 +50,8 @@ class Episode:
     (rad or m, rad/s or m/s) observed before the action; action (T, A) as applied (layout in
     tasks.sim.control); object_pose (T, N, 7) xyz + quaternion wxyz; success_flag (T,) the
     evaluation target holds at that step; estop (T,) an emergency stop has happened;
-    frames[camera] F_c x H x W x 3 uint8 RGB with frame_time[camera] (F_c,) s.
+    frames[camera] F_c x H x W x 3 uint8 RGB with frame_time[camera] (F_c,) s, for the cameras
+    recorded (every manifest camera unless `rollout` was told to record fewer).
     """
 
     manifest: ScenarioManifest
@@ -187,11 +192,30 @@ FrameHook = Callable[[Scene, MultiCameraRenderer, mujoco.MjData, str, "np.ndarra
 (tasks.controls.render.Recorder renders depth and segmentation there)."""
 
 
+def recorded_cameras(manifest: ScenarioManifest, record: Sequence[str] | None) -> tuple[str, ...]:
+    """The manifest's cameras ``record`` names, in manifest order (None: all of them)."""
+    names = tuple(c.name for c in manifest.cameras)
+    if record is None:
+        return names
+    if isinstance(record, (str, bool)):
+        raise TypeError(f"record: a sequence of camera names or None, not {record!r}")
+    unknown = [n for n in record if n not in names]
+    if unknown:
+        raise ValueError(f"record: camera(s) {', '.join(unknown)} not in {manifest.name} (it has {', '.join(names)})")
+    return tuple(n for n in names if n in record)
+
+
 def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig(),
-            controller: ControllerFactory | None = None, on_frame: FrameHook | None = None) -> Episode:
-    """Simulate the manifest's task for horizon_s and render every camera at its own fps.
+            controller: ControllerFactory | None = None, on_frame: FrameHook | None = None,
+            record: Sequence[str] | None = None) -> Episode:
+    """Simulate the manifest's task for horizon_s and render each recorded camera at its own fps.
     controller: drive the robot with this instead of the scripted controller (a policy).
-    on_frame: called after each frame with the state and camera pose it was rendered from."""
+    on_frame: called after each recorded frame with the state and camera pose it was rendered from.
+    record: the cameras whose frames the episode keeps (None: every camera; (): none, and no
+    renderer is opened). The scene is always built from the whole manifest, so a policy's own
+    renderer sees every camera at its real fps and resolution, and the physics is the same
+    whatever is recorded."""
+    recorded = recorded_cameras(manifest, record)
     scene = build_scene(manifest, seed, config)
     sim = Simulation(scene, seed, controller=controller)
     m, d = sim.model, sim.data
@@ -204,13 +228,14 @@ def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig
     rest_z = float(scene.initial_qpos[m.jnt_qposadr[m.body_jntadr[objs[0]]] + 2])
     jitter = manifest.stressor("camera_jitter")
     phases = jitter_phases(scene)
-    cams = manifest.cameras
+    cams = [c for c in manifest.cameras if c.name in recorded]
     n_frames = {c.name: int(math.floor(manifest.horizon_s * c.fps + 1e-9)) for c in cams}
     frames = {c.name: np.zeros((n_frames[c.name], c.resolution[1], c.resolution[0], 3), np.uint8) for c in cams}
     next_frame = {c.name: 0 for c in cams}
     out = {k: [] for k in ("time", "qpos", "qvel", "action", "pose", "flag", "estop")}
 
-    with MultiCameraRenderer(m, {c.name: tuple(c.resolution) for c in cams}) as renderer:
+    opened = MultiCameraRenderer(m, {c.name: tuple(c.resolution) for c in cams}) if cams else contextlib.nullcontext()
+    with opened as renderer:
         def capture(data: mujoco.MjData) -> None:
             for c in cams:
                 j = next_frame[c.name]
@@ -230,7 +255,7 @@ def rollout(manifest: ScenarioManifest, seed: int, config: SimConfig = SimConfig
                 out["pose"].append(np.concatenate([d.xpos[objs], d.xquat[objs]], axis=1))
                 out["flag"].append(_target_holds(sim, rest_z))
                 out["estop"].append(sim.estop_reason is not None)
-                out["action"].append(sim.advance(capture))
+                out["action"].append(sim.advance(capture if cams else None))
         finally:
             close = getattr(sim.controller, "close", None)  # a vision policy's renderer
             if close is not None:

@@ -54,7 +54,13 @@ def _atomic(path: Path, write) -> None:
 
 
 def write_episode(ep, root: Path, manifest_hash: str, index: int, crf: int = 20) -> EpisodeFiles:
-    """Write one episode under EPISODE_DIR; meta.json is written last and marks it complete."""
+    """Write one episode under EPISODE_DIR; meta.json is written last and marks it complete.
+    Every manifest camera's video is written: an episode rolled out recording fewer cameras
+    (`rollout(..., record=...)`) is refused."""
+    missing = [c.name for c in ep.manifest.cameras if c.name not in ep.frames]
+    if missing:
+        raise ValueError(f"episode of {ep.manifest.name} seed {ep.seed} has no frames of camera(s) "
+                         f"{', '.join(missing)}: roll it out recording every camera to write it")
     fields = dict(manifest_hash=manifest_hash, index=index)
     directory = paths.resolve(root, paths.EPISODE_DIR, **fields)
     directory.mkdir(parents=True, exist_ok=True)

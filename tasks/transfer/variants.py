@@ -1,8 +1,8 @@
 """Vision demonstrations in other looks: the same steps, the camera frames made by a transfer model.
 
 A vision policy's demonstrations (`tasks.policy.vision.collect`) hold, per control step, the
-latest frame of each observed camera as the policy saw it (collection renders at the
-`physics_only` cameras' 1 fps) and the proprioception and expert move. A transferred variant
+latest frame of each observed camera as the policy saw it (a new one at each of the camera's
+frame times, the manifest's fps) and the proprioception and expert move. A transferred variant
 keeps every step's proprioception and move and replaces one camera's frames by the transfer
 model's output in a look (issue 32 point 6).
 
@@ -26,7 +26,6 @@ import torch
 from models.transfer import TransferNet, reference_features
 from schemas.manifest import ScenarioManifest
 from tasks.controls.render import Recorder
-from tasks.policy.bc import physics_only
 from tasks.policy.vision import VisionDemonstrations
 from tasks.policy.vision_obs import ObservationSpec
 from tasks.sim.episode import rollout
@@ -61,7 +60,6 @@ def episode_clips(manifest: ScenarioManifest, demos: VisionDemonstrations, spec:
         raise ValueError(f"the demonstrations observe {', '.join(spec.cameras)}, not {camera!r}")
     c = spec.cameras.index(camera)
     cam = next(x for x in manifest.cameras if x.name == camera)
-    seen_fps = next(x for x in physics_only(manifest).cameras if x.name == camera).fps
     out = []
     for k, seed in enumerate(demos.seeds):
         rows = np.flatnonzero(demos.episode == k)
@@ -75,7 +73,7 @@ def episode_clips(manifest: ScenarioManifest, demos: VisionDemonstrations, spec:
             r = recorder.rendered()
             clip = camera_clip(ep.frames[camera], size, camera, seed, r.depth_mm[camera], r.ids[camera], r.legend)
         frames = clip.frames
-        index = np.minimum(frame_index(demos.proprio[rows, -1], manifest.horizon_s, seen_fps, cam.fps), len(frames) - 1)
+        index = np.minimum(frame_index(demos.proprio[rows, -1], manifest.horizon_s, cam.fps, cam.fps), len(frames) - 1)
         seen = resize_frames(demos.frames[rows, c].transpose(0, 2, 3, 1), size)
         mismatch = float(np.abs(seen.astype(np.int16) - frames[index].astype(np.int16)).mean())
         out.append(EpisodeClip(clip, rows, index, mismatch))

@@ -7,7 +7,7 @@ import torch
 from schemas.panel import contract_hash
 from tasks.manifests import load
 from tasks.policy.base import ScriptedPolicy
-from tasks.policy.bc import (BCController, BCPolicy, TrainConfig, collect, load_checkpoint, physics_only,
+from tasks.policy.bc import (BCController, BCPolicy, TrainConfig, collect, load_checkpoint,
                              save_checkpoint, success_rate, train_bc)
 from tasks.policy.features import arm_features
 from tasks.policy.specs import PolicySpecError, load_policy
@@ -72,7 +72,7 @@ def test_demonstrations_are_what_the_scripted_controller_saw_and_did(trained):
     # At most MAX_STEP (12 mm) plus the manifest's small noise; push keeps the fingers closed.
     assert np.linalg.norm(demos.act[:, :3], axis=1).max() < 0.013 and set(np.unique(demos.act[:, 4])) == {1.0}
     # The first observation of an episode is the features of the scene as built.
-    scene = build_scene(physics_only(PUSH), TRAIN_SEEDS[0])
+    scene = build_scene(PUSH, TRAIN_SEEDS[0])
     ctrl = BCController(trained[1], scene, TRAIN_SEEDS[0])
     from tasks.sim.episode import Simulation
 
@@ -99,7 +99,7 @@ def test_checkpoint_round_trip_and_numpy_forward_match_torch(trained):
     with torch.no_grad():
         assert torch.equal(loaded(obs), model(obs))
         want = model(obs).double().numpy()
-    ctrl = BCController(loaded, build_scene(physics_only(PUSH), 1), 1)
+    ctrl = BCController(loaded, build_scene(PUSH, 1), 1)
     got = np.stack([ctrl.act(o) for o in obs.numpy()])
     assert np.allclose(got, want, atol=1e-5)
 

@@ -71,3 +71,10 @@ def test_lineage_links_manifest_episode_videos(tmp_path, manifest, episode):
     assert {(e.parent_id, e.child_id) for e in batch.edges} >= {(digest, ep.artifact_id)}
     assert all(not a.uri.startswith("/") for a in batch.artifacts)
     assert {m.name for m in batch.metrics} == {"success", "steps"}
+
+
+def test_an_episode_missing_a_cameras_frames_is_refused(tmp_path, manifest):
+    partial = rollout(manifest, 7, record=("wrist",))
+    with pytest.raises(ValueError, match="no frames of camera.s. front_left, front_right"):
+        write_episode(partial, tmp_path, manifest_hash(manifest), 0)
+    assert not any(tmp_path.iterdir())

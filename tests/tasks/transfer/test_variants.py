@@ -41,7 +41,7 @@ def test_the_rollout_is_the_demonstrations_own(demos, clips):
     assert item.mismatch < 1.0  # area resizing 64 -> 32 -> 16 against 64 -> 16 rounds a little differently
     assert len(item.rows) == len(demos.act) and item.clip.frames.shape == (20, 16, 16, 3)
     assert item.clip.depth_mm.any() and item.clip.seg.any()
-    assert set(item.index.tolist()) == {0, 10}
+    assert np.array_equal(item.index, np.arange(100) // 5)  # each step saw the camera's latest 10 fps frame
 
 
 def test_variants_keep_the_steps_and_change_the_frames(demos, clips):
@@ -57,7 +57,7 @@ def test_variants_keep_the_steps_and_change_the_frames(demos, clips):
         assert not np.array_equal(out.frames[k * n:(k + 1) * n], demos.frames)
     # steps that saw the same camera frame see the same generated frame
     first = out.frames[n:2 * n]
-    assert (first[:50] == first[0]).all()
+    assert all((first[k:k + 5] == first[k]).all() for k in range(0, n, 5))
 
 
 def test_without_rendered_controls_is_the_model_at_weight_zero(demos, clips):
