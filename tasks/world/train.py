@@ -51,30 +51,39 @@ def window_length(sequences: Sequence[CodeSequence], max_frames: int) -> int:
     return min(max_frames, longest)
 
 
-def sample_windows(sequences: Sequence[CodeSequence], frames: int, batch: int, gen: torch.Generator,
-                   with_actions: bool = False, text_dropout: float = 0.0
-                   ) -> tuple[torch.Tensor, list[str], torch.Tensor | None]:
-    """``batch`` random windows of ``frames`` latent frames (from sequences at least that long):
-    codes ``B x frames x H' x W'`` int64, texts (dropped to "" with probability ``text_dropout``),
-    and actions ``B x (frames - 1) x F`` float32 (the rows between the window's frames) or None."""
+def pick_windows(sequences: Sequence, frames: int, batch: int, gen: torch.Generator, with_actions: bool,
+                 text_dropout: float, values: Callable) -> tuple[list[np.ndarray], list[str], torch.Tensor | None]:
+    """``batch`` random windows of ``frames`` latent frames of ``values(sequence)`` (an array whose
+    first axis is the latent frame: codes, or a diffusion model's latents), with their texts (dropped
+    to "" with probability ``text_dropout``) and actions ``B x (frames - 1) x F`` float32 (the rows
+    between the window's frames) or None. Both world-model families draw their windows here."""
     usable = [s for s in sequences if s.frames >= frames]
     if not usable:
         raise ValueError(f"no sequence has {frames} latent frames")
-    grids = {s.codes.shape[1:] for s in usable}
+    grids = {values(s).shape[1:] for s in usable}
     if len(grids) > 1:
         raise ValueError(f"sequences have different latent grids {sorted(grids)}; train on one tokenizer size")
-    codes, texts, actions = [], [], []
+    windows, texts, actions = [], [], []
     for _ in range(batch):
         seq = usable[int(torch.randint(len(usable), (1,), generator=gen))]
         t0 = int(torch.randint(seq.frames - frames + 1, (1,), generator=gen))
-        codes.append(seq.codes[t0:t0 + frames])
+        windows.append(values(seq)[t0:t0 + frames])
         drop = text_dropout > 0 and float(torch.rand((), generator=gen)) < text_dropout
         texts.append("" if drop else seq.text)
         if with_actions:
             if seq.actions is None:
                 raise ValueError(f"{seq.key}: no actions to condition on")
             actions.append(seq.actions[t0:t0 + frames - 1])
-    acts = torch.from_numpy(np.stack(actions)) if with_actions else None
+    acts = torch.from_numpy(np.stack(actions).astype(np.float32)) if with_actions else None
+    return windows, texts, acts
+
+
+def sample_windows(sequences: Sequence[CodeSequence], frames: int, batch: int, gen: torch.Generator,
+                   with_actions: bool = False, text_dropout: float = 0.0
+                   ) -> tuple[torch.Tensor, list[str], torch.Tensor | None]:
+    """``batch`` random windows of ``frames`` latent frames (from sequences at least that long):
+    codes ``B x frames x H' x W'`` int64, texts and actions as ``pick_windows`` gives them."""
+    codes, texts, acts = pick_windows(sequences, frames, batch, gen, with_actions, text_dropout, lambda s: s.codes)
     return torch.from_numpy(np.stack(codes)).long(), texts, acts
 
 
