@@ -41,7 +41,9 @@ def train(params: TrainParams) -> None:
     """Pre-train a world model on token shards, post-train it with actions on episodes (Prefect flow `train`)."""
     if _is_yaml(params.manifest):
         need.manifest(params.manifest)
-    if params.tokenizer:
+    if params.tokenizer and params.family == "diffusion":  # any variant found, the family's refusal says why not
+        params.check_tokenizer(need.tokenizer(params.tokenizer, variant=None))
+    elif params.tokenizer:
         need.tokenizer(params.tokenizer)
     from flows.train import episode_folders
     from flows.train import train as train_flow
@@ -74,7 +76,10 @@ def evaluate_physics_cmd(params: PhysicsParams) -> None:
     shuffled actions (Prefect flow `evaluate-physics`)."""
     need.simulable(params.manifest)
     folder = need.world_model(params.world_model)
-    tokenizer = need.tokenizer(params.tokenizer) if params.tokenizer else None
+    from tasks.world.family import TOKENIZER_VARIANT, family_of, read_world_config
+
+    variant = TOKENIZER_VARIANT[family_of(read_world_config(folder))]  # a diffusion one reads a continuous tokenizer
+    tokenizer = need.tokenizer(params.tokenizer, variant) if params.tokenizer else None
     from flows.physics import evaluate_physics
 
     writing()

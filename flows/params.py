@@ -33,6 +33,7 @@ Holdout = Annotated[int, Field(ge=0, le=10_000)]
 Horizon = Annotated[int, Field(ge=1, le=64)]
 Worst = Annotated[int, Field(ge=1, le=8)]
 WorldSamples = Annotated[int, Field(ge=1, le=64)]
+SamplerSteps = Annotated[int, Field(ge=1, le=1000, description="a diffusion world model's Euler steps per sample")]
 
 
 class Refused(ValueError):

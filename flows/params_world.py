@@ -3,11 +3,12 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, model_validator
 
 from flows.params import (ActionTotals, Batch, ComputeParams, EncodeFrames, FlowParams, FocusCrops, Horizon, PanelEpisodes, Patch,
-                          Refused, Seed, Share, Side, Steps, Weight, Window)
+                          Refused, SamplerSteps, Seed, Share, Side, Steps, Weight, Window)
 
 HELDOUT_FIRST_SEED = 10_000  # the first held-out seed: never one the world model trained on
 
@@ -54,9 +55,10 @@ class TrainParams(ComputeParams):
     manifest: str = Field(description="manifest YAML whose simulated episodes post-train the model (or an episode "
                                       "folder, or a manifest hash)")
     tokenizer: str | None = Field(None, description="tokenizer checkpoint folder or id; default the newest discrete "
-                                                    "one with token shards")
+                                                    "one with token shards (continuous with --family diffusion)")
     token_shards: str | None = Field(None, description="token shard folder; default the tokenizer's token shards")
-    preset_name: str = Field("tiny-wm", description="world model preset (models/world_model.py PRESETS)")
+    preset_name: str = Field("tiny-wm", description="world model preset: *-wm (models/world_model.py PRESETS), or "
+                                                    "*-dwm with --family diffusion (models/diffusion_world.py)")
     pretrain_steps: Steps = Field(200, description="pre-training steps")
     posttrain_steps: Steps = Field(100, description="post-training steps")
     camera: str | None = Field(None, description="post-train on this camera only (default: every camera)")
@@ -75,6 +77,9 @@ class TrainParams(ComputeParams):
                                         "commanded hand's offset, which a few-frame window cannot add up)")
     also: list[str] | None = Field(None, description="another manifest (YAML, episode folder or hash) whose "
                                    "episodes join post-training; repeatable")
+    family: Literal["autoregressive", "diffusion"] = Field(
+        "autoregressive", description="autoregressive: next-code prediction on a discrete tokenizer's codes; "
+        "diffusion: flow matching on a continuous tokenizer's latents (a *-dwm preset)")
     cli_arguments = ("manifest",)
     cli_names = {"token_shards": "--tokens", "preset_name": "--preset", "pretrain_steps": "--steps",
                  "posttrain_steps": "--post-steps", "batch_size": "--batch", "compile_model": "--compile"}
@@ -82,15 +87,52 @@ class TrainParams(ComputeParams):
 
     @model_validator(mode="after")
     def _known_preset(self):
+        from models.diffusion_world import PRESETS as DIFFUSION
         from models.world_model import PRESETS
 
-        _known(PRESETS, self.preset_name, "preset_name", "world model")
+        ours, theirs = (DIFFUSION, PRESETS) if self.family == "diffusion" else (PRESETS, DIFFUSION)
+        if self.preset_name in theirs:
+            kind = "an autoregressive (*-wm)" if self.family == "diffusion" else "a diffusion (*-dwm)"
+            raise Refused(f"{{preset_name}} {self.preset_name!r} is {kind} world model preset; {{family}} "
+                          f"{self.family} takes {', '.join(sorted(ours))}")
+        _known(ours, self.preset_name, "preset_name", "diffusion world model" if self.family == "diffusion"
+               else "world model")
+        if self.family == "diffusion":
+            for name in ("change_weight", "self_condition"):
+                if getattr(self, name):
+                    raise Refused(f"{{{name}}}: the autoregressive world model's option; {{family}} diffusion "
+                                  "has no codes to weigh or roll out in training")
         return self
+
+    def presets(self) -> dict:
+        from models.diffusion_world import PRESETS as DIFFUSION
+        from models.world_model import PRESETS
+
+        return DIFFUSION if self.family == "diffusion" else PRESETS
+
+    def check_tokenizer(self, folder: str | None) -> None:
+        """A tokenizer checkpoint folder's variant against the family: the diffusion world model
+        denoises a continuous tokenizer's latents (the autoregressive family's own check stays
+        where it was: ``flows.cli_checks.tokenizer``, ``tasks.world.inputs.tokenizer_checkpoint``)."""
+        from models.tokenizer import TokenizerConfig
+        from tasks.checkpoint_files import CheckpointError, model_config, read_config
+
+        if self.family != "diffusion" or not folder or not Path(folder).is_dir():
+            return
+        try:
+            variant = model_config(TokenizerConfig, read_config(Path(folder), "tokenizer", "tokenizer checkpoint"),
+                                   "tokenizer", Path(folder)).variant
+        except CheckpointError:
+            return  # the loader says what is wrong with it
+        if variant != "continuous":
+            raise Refused(f"{{tokenizer}} {self.tokenizer}: a {variant} tokenizer; {{family}} diffusion needs a "
+                          "continuous one (it denoises latents, not codes)")
 
     def check_episodes(self, folder: Path) -> None:
         """The camera and the action totals against the first episode of ``manifest``."""
-        from models.world_model import PRESETS
         from tasks.world.data import read_meta, read_steps
+
+        PRESETS = self.presets()
 
         cameras = read_meta(folder).get("cameras", [])
         if self.camera is not None and self.camera not in cameras:
@@ -105,8 +147,8 @@ class TrainParams(ComputeParams):
 
 class PhysicsParams(FlowParams):
     manifest: str = Field(description="scenario manifest YAML")
-    world_model: str | None = Field(None, description="post-trained world-model checkpoint folder or id (default: "
-                                                      "the newest post-trained one in lineage)")
+    world_model: str | None = Field(None, description="post-trained world-model checkpoint folder or id, "
+                                    "autoregressive or diffusion (default: the newest post-trained one in lineage)")
     tokenizer: str | None = Field(None, description="its tokenizer's checkpoint folder or id (default: the one it "
                                                     "was trained with)")
     episodes: PanelEpisodes = Field(10, description="held-out episodes")
@@ -117,6 +159,8 @@ class PhysicsParams(FlowParams):
     stride: int = 2
     move_threshold_cm: float = 2.0
     shuffle_seed: int = 0
+    sampler_steps: SamplerSteps = Field(8, description="a diffusion world model's Euler sampling steps per window "
+                                                       "(an autoregressive one decodes greedily)")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest",)
     cli_hidden = ("context", "stride", "move_threshold_cm", "shuffle_seed")

@@ -16,7 +16,7 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
-from flows.params import Horizon, PanelEpisodes, Seed
+from flows.params import Horizon, PanelEpisodes, SamplerSteps, Seed
 from flows.params_world import HELDOUT_FIRST_SEED, PhysicsParams
 from flows.recording import RunContext, recorded_run
 from flows.report import progress, publish
@@ -28,6 +28,7 @@ from tasks import manifests
 from tasks.lookup import verified_artifact, verified_file, world_model_folder
 from tasks.tokenize import tokens
 from tasks.world import checkpoints, evaluation, physics, report
+from tasks.world.family import DIFFUSION, family_of, model_section, read_world_config
 from tasks.world.data import episode_text
 from tasks.world.geometry import PinholeCamera
 
@@ -62,10 +63,12 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
                      first_seed: Seed = HELDOUT_FIRST_SEED, camera: str | None = None,
                      horizon: Horizon = 4,
                      context: int | None = None, stride: int = 2, move_threshold_cm: float = 2.0,
-                     shuffle_seed: int = 0) -> dict:
-    """Evaluate ``world_model`` (a post-trained checkpoint folder or id; default the newest) on
-    ``episodes`` held-out seeds from ``first_seed`` of ``manifest``: windows of ``context``
-    latent frames (default the model's window less ``horizon``) predict ``horizon`` more."""
+                     shuffle_seed: int = 0, sampler_steps: SamplerSteps = 8) -> dict:
+    """Evaluate ``world_model`` (a post-trained checkpoint folder or id of either family; default
+    the newest) on ``episodes`` held-out seeds from ``first_seed`` of ``manifest``: windows of
+    ``context`` latent frames (default the model's window less ``horizon``) predict ``horizon``
+    more. ``sampler_steps``: a diffusion world model's Euler steps per sample (it enters a
+    diffusion evaluation's id only)."""
     PhysicsParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
@@ -83,13 +86,15 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
               "stride": stride, "move_threshold_cm": move_threshold_cm, "shuffle_seed": shuffle_seed}
     with recorded_run("evaluate-physics", settings, scenario, source_uri=manifest, params=params) as run:
         wm_folder = world_model_folder(run.warehouse, root, world_model)
-        config = checkpoints.read_config(wm_folder)
+        config = read_world_config(wm_folder)
+        if family_of(config) == DIFFUSION:
+            params["sampler_steps"] = sampler_steps  # so an autoregressive evaluation's id is as before
         overlap = evaluation.trained_seeds(config, root) & set(seeds)
         if overlap:
             raise ValueError(f"seeds {sorted(overlap)} trained this world model: evaluate on held-out seeds")
         tok_folder = Path(tokenizer) if tokenizer else root / config["tokenizer"]
-        size, window = int(config["size"]), int(config["world_model"]["max_frames"])
-        every = int(config["world_model"]["temporal_compression"])  # report every latent step
+        size, window = int(config["size"]), int(model_section(config)["max_frames"])
+        every = int(model_section(config)["temporal_compression"])  # report every latent step
         context = context or max(1, window - horizon)
         wm_id = _artifact_id(run, wm_folder / checkpoints.WEIGHTS_FILE, "checkpoint", {"model": "world_model"})
         tok_id = _artifact_id(run, tok_folder / tokens.WEIGHTS_FILE, "checkpoint", {"model": "tokenizer"})
@@ -116,7 +121,7 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
         windows, memorising = predict_heldout(wm_folder, tok_folder, per_camera, cameras, size, text, context, horizon,
                                           stride, move_threshold_cm / 100, shuffle_seed,
                                               evaluation.trained_folders(config, root),
-                                          tok_id, root)
+                                          tok_id, root, sampler_steps)
         main = windows[primary.name]
         if not main:
             raise ValueError(f"episodes of {scenario.horizon_s} s are too short for {context} + {horizon} "

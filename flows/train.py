@@ -1,8 +1,9 @@
-"""train: a discrete tokenizer's token shards -> pre-train the world model with text -> encode a
+"""train: a tokenizer's token shards -> pre-train the world model with text -> encode a
 manifest's simulated episodes with that tokenizer -> post-train with their actions. Both
 checkpoints, their training curves and their edges (``trained_on`` the token shards or episodes
 and the tokenizer, ``posttrained_from`` the pre-trained checkpoint) land in lineage; a finished
-phase is skipped on a re-run."""
+phase is skipped on a re-run. ``family``: the autoregressive model on a discrete tokenizer's
+codes, or the diffusion one on a continuous tokenizer's latents (``tasks.world.phases.family_setup``)."""
 
 from __future__ import annotations
 
@@ -16,38 +17,37 @@ from flows.params import ActionTotals, Batch, Patch, Seed, Share, Steps, Weight,
 from flows.params_world import TrainParams
 from flows.recording import RunContext, recorded_run
 from flows.report import progress, publish
-from models.world_model import WorldModelConfig, preset
 from schemas import paths
 from schemas.hashing import content_hash, stable_id
 from schemas.settings import Settings
 from tasks import progress as ticks
 from tasks.device import Runtime
 from tasks.lookup import verified_checkpoint
-from tasks.world import checkpoints, data, inputs, phases
+from tasks.world import checkpoints, inputs, phases
+from tasks.world.family import TOKENIZER_VARIANT
 from tasks.world.inputs import episode_folders, uri
-from tasks.world.train import WorldTrainConfig
 
 STAGE_PRETRAIN, STAGE_POSTTRAIN = "pretrain_world_model", "posttrain_world_model"
 # Bumped when post-training learns something different from the same inputs, so an earlier
 # checkpoint is not taken for a finished one. 2: actions divided by their RMS (action_scale).
 POSTTRAIN_RECIPE = 2
 
-load_tokens = task(data.load_token_sequences, name="load-token-shards", retries=1)
+load_tokens = task(phases.load_sequences, name="load-token-shards", retries=1)
 encode_episode = task(phases.encode_episode, name="encode-episode", retries=1)
 pretrain = task(phases.pretrain, name="pretrain-world-model")
 posttrain = task(phases.posttrain, name="posttrain-world-model")
 
 
 def pretrain_phase(run: RunContext, tok_folder: Path, tok_id: str, shards: list, sequences: list, size: int,
-                   model_config: WorldModelConfig, config: WorldTrainConfig, preset_name: str,
-                   runtime: Runtime | None = None) -> tuple[str, Path, list]:
+                   setup: dict, preset_name: str, runtime: Runtime | None = None) -> tuple[str, Path, list]:
     """(checkpoint id, folder, history: empty when done before) of pre-training on token sequences
     with their captions."""
-    root = run.settings.data_root.resolve()
+    root, model_config, config = run.settings.data_root.resolve(), setup["model"], setup["pre"]
     hashes = {mh for *_, mh in shards if mh}
     mh = hashes.pop() if len(hashes) == 1 else None
     shard_ids = sorted(s for _, s, _ in shards)
-    key = stable_id(STAGE_PRETRAIN, content_hash(model_config), phases.meaning(config), tok_id, *shard_ids)
+    key = stable_id(STAGE_PRETRAIN, *setup["key"], content_hash(model_config), phases.meaning(config), tok_id,
+                    *shard_ids)
     pre_id = stable_id("checkpoint", key)
     folder = paths.resolve(root, paths.CHECKPOINT_DIR, model=model_config.name, checkpoint_id=pre_id)
     stage = run.stage(STAGE_PRETRAIN, key, [folder / checkpoints.WEIGHTS_FILE], manifest_hash=mh)
@@ -62,26 +62,26 @@ def pretrain_phase(run: RunContext, tok_folder: Path, tok_id: str, shards: list,
     stage.finish(len(sequences), 1, checkpoints.checkpoint_lineage(
         pre_id, folder, root, [(s, "trained_on") for s in shard_ids] + [(tok_id, "trained_on")],
         history, stage.id, mh, {"model": "world_model", "phase": "pretrain", "preset": preset_name,
-                                "steps": config.steps, "params": params, "tokenizer_id": tok_id}),
-        attrs={"checkpoint_id": pre_id, "steps": config.steps})
+                                "steps": config.steps, "params": params, "tokenizer_id": tok_id, **setup["attrs"]},
+        metrics=setup["metrics"]), attrs={"checkpoint_id": pre_id, "steps": config.steps})
     print(f"pre-trained {preset_name} on {len(sequences)} token sequences for {config.steps} steps: "
-          f"loss {history[-1]['loss']:.3f}, accuracy {history[-1]['accuracy']:.3f}")
+          f"{phases.scores(history)}")
     return pre_id, folder, history
 
 
 def posttrain_phase(run: RunContext, sources: list, pre_id: str, pre_folder: Path, tok_folder: Path, tok_id: str,
-                    size: int, camera: str | None, model_config: WorldModelConfig, config: WorldTrainConfig,
-                    preset_name: str, runtime: Runtime | None = None) -> tuple[str, Path, list, int]:
+                    size: int, camera: str | None, setup: dict, preset_name: str,
+                    runtime: Runtime | None = None) -> tuple[str, Path, list, int]:
     """(checkpoint id, folder, history, episode videos) of post-training with actions on the
     episodes of ``sources``, from the pre-trained weights."""
-    root = run.settings.data_root.resolve()
+    root, model_config, config = run.settings.data_root.resolve(), setup["model"], setup["post"]
     folders = [f for found, _ in sources for f in found]
     episodes = inputs.episodes(run.warehouse, folders, root)
     episode_hashes = {mh for *_, mh in episodes if mh}
     mh = run.manifest_hash or (episode_hashes.pop() if len(episode_hashes) == 1 else None)
     episode_ids = sorted(e for _, e, _ in episodes)
-    key = stable_id(STAGE_POSTTRAIN, f"recipe {POSTTRAIN_RECIPE}", pre_id, phases.meaning(config), camera or "*",
-                    *episode_ids)
+    key = stable_id(STAGE_POSTTRAIN, *setup["key"], f"recipe {POSTTRAIN_RECIPE}", pre_id, phases.meaning(config),
+                    camera or "*", *episode_ids)
     post_id = stable_id("checkpoint", key)
     folder = paths.resolve(root, paths.CHECKPOINT_DIR, model=model_config.name, checkpoint_id=post_id)
     stage = run.stage(STAGE_POSTTRAIN, key, [folder / checkpoints.WEIGHTS_FILE], manifest_hash=mh)
@@ -103,10 +103,9 @@ def posttrain_phase(run: RunContext, sources: list, pre_id: str, pre_folder: Pat
         [(e, "trained_on") for e in episode_ids] + [(tok_id, "trained_on"), (pre_id, "posttrained_from")],
         history, stage.id, mh,
         {"model": "world_model", "phase": "posttrain", "preset": preset_name, "steps": config.steps,
-         "params": params, "tokenizer_id": tok_id, "pretrained_id": pre_id, "camera": camera}),
-        attrs={"checkpoint_id": post_id, "steps": config.steps})
-    print(f"post-trained on {len(sequences)} episode videos for {config.steps} steps: "
-          f"loss {history[-1]['loss']:.3f}, accuracy {history[-1]['accuracy']:.3f}")
+         "params": params, "tokenizer_id": tok_id, "pretrained_id": pre_id, "camera": camera, **setup["attrs"]},
+        metrics=setup["metrics"]), attrs={"checkpoint_id": post_id, "steps": config.steps})
+    print(f"post-trained on {len(sequences)} episode videos for {config.steps} steps: {phases.scores(history)}")
     return post_id, folder, history, len(sequences)
 
 
@@ -117,7 +116,8 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
           camera: str | None = None, seed: Seed = 0, patch: Patch | None = None,
           change_weight: Weight = 0.0, self_condition: Share = 0.0,
           action_totals: ActionTotals = 0, also: list[str] | None = None, device: str | None = None,
-          precision: Literal["fp32", "bf16"] = "fp32", compile_model: bool = False) -> dict:
+          precision: Literal["fp32", "bf16"] = "fp32", compile_model: bool = False,
+          family: Literal["autoregressive", "diffusion"] = "autoregressive") -> dict:
     """Pre-train world model ``preset_name`` on ``tokenizer``'s token shards (or ``token_shards``),
     then post-train it with actions on the simulated episodes of ``manifest`` (a YAML, an
     episode folder or a manifest hash), every camera or only ``camera``. ``patch``: codes per
@@ -129,8 +129,10 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
     ``also``: more manifests (or episode folders, or hashes) whose episodes join post-training,
     each with its own manifest's text (e.g. the same scene at a noisier controller, so the model
     sees pushes that fail). ``device``, ``precision``, ``compile_model``: where it trains
-    (``tasks.device``; none of it enters a checkpoint's id)."""
+    (``tasks.device``; none of it enters a checkpoint's id). ``family`` ``diffusion``: the diffusion
+    world model on a continuous tokenizer's latents, with a ``*-dwm`` preset."""
     checks = TrainParams.of(locals())  # every parameter check, for a deployment as for the CLI
+    checks.check_tokenizer(tokenizer)
     runtime = checks.runtime()
     settings = Settings()
     root = settings.data_root.resolve()
@@ -144,26 +146,20 @@ def train(manifest: str, tokenizer: str | None = None, token_shards: str | None 
                               "posttrain_steps": posttrain_steps, "batch_size": batch_size, "window": window,
                               "camera": camera, "seed": seed, "patch": patch,
                               "change_weight": change_weight, "self_condition": self_condition,
-                              "action_totals": action_totals, "also": also or []}) as run:
-        tok_folder, tok_id, tok_config = inputs.tokenizer_checkpoint(run.warehouse, root, tokenizer)
+                              "action_totals": action_totals, "also": also or [],
+                              **({"family": family} if family != "autoregressive" else {})}) as run:
+        variant = TOKENIZER_VARIANT[family]
+        tok_folder, tok_id, tok_config = inputs.tokenizer_checkpoint(run.warehouse, root, tokenizer, variant)
         shards = inputs.token_shards(run.warehouse, root, tok_id, token_shards)
-        sequences = load_tokens([p for p, _, _ in shards], root)
-        (grid_h, grid_w), size = inputs.shape(sequences)
-        model_config = preset(preset_name, codebook_size=tok_config.codebook_size, max_height=grid_h, max_width=grid_w,
-                              temporal_compression=tok_config.temporal_compression,
-                              patch=patch or phases.token_patch(grid_h, grid_w),
-                              **({"max_frames": window} if window else {}))
-        pre_config = WorldTrainConfig(preset=preset_name, steps=pretrain_steps, batch_size=batch_size, seed=seed,
-                                      threads=threads, change_weight=change_weight)
-        post_config = WorldTrainConfig(preset=preset_name, steps=posttrain_steps, batch_size=batch_size, seed=seed,
-                                       threads=threads, lr=pre_config.lr / 2, warmup_steps=10,
-                                       change_weight=change_weight, self_condition=self_condition,
-                                       action_totals=action_totals)
-        pre_id, pre_folder, pre_history = pretrain_phase(run, tok_folder, tok_id, shards, sequences, size,
-                                                         model_config, pre_config, preset_name, runtime)
+        sequences = load_tokens([p for p, _, _ in shards], root, variant)
+        grid, size = inputs.shape(sequences)
+        setup = phases.family_setup(family, preset_name, tok_config, grid, patch, window,
+                                    (pretrain_steps, posttrain_steps), batch_size, seed, threads, change_weight,
+                                    self_condition, action_totals)
+        pre_id, pre_folder, pre_history = pretrain_phase(run, tok_folder, tok_id, shards, sequences, size, setup,
+                                                         preset_name, runtime)
         post_id, post_folder, post_history, videos = posttrain_phase(
-            run, sources, pre_id, pre_folder, tok_folder, tok_id, size, camera, model_config, post_config, preset_name,
-            runtime)
+            run, sources, pre_id, pre_folder, tok_folder, tok_id, size, camera, setup, preset_name, runtime)
 
         body = (f"tokenizer `{tok_id}`, {len(shards)} token shards ({len(sequences)} sequences), "
                 f"{len(folders)} episodes\n\n"

@@ -62,6 +62,8 @@ PHYSICS_REPORT = "evaluations/{evaluation_id}/physics.md"
 PHYSICS_PLOT = "evaluations/{evaluation_id}/{plot}.png"
 # A camera video's tokenizer codes (a cache the train flow may delete and rebuild).
 EPISODE_CODES_FILE = "cache/episode_codes/{tokenizer_id:.12}/{video_sha256:.24}-{size}.npz"
+# ... and a continuous tokenizer's latents (the diffusion world model's post-training).
+EPISODE_LATENTS_FILE = "cache/episode_latents/{tokenizer_id:.12}/{video_sha256:.24}-{size}.npz"
 
 
 # Manifests the loop derives from a panel's failing cells.

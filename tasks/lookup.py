@@ -69,13 +69,13 @@ def verified_world_model(warehouse: Warehouse | None, root: Path, folder: Path |
     """The lineage id (None: external, or no folder) of a world-model checkpoint folder about to
     roll out, its weights and its tokenizer's (``tokenizer`` in its config) checked against
     lineage. An unreadable config is left to the loader's one-line error."""
-    from tasks.world.checkpoints import read_config
+    from tasks.world.family import read_world_config
 
     if not folder:
         return None
     artifact_id, _ = verified_checkpoint(warehouse, root, Path(folder))
     try:
-        tokenizer = read_config(Path(folder)).get("tokenizer")
+        tokenizer = read_world_config(Path(folder)).get("tokenizer")
     except CheckpointError:
         return artifact_id
     if isinstance(tokenizer, str):
@@ -128,9 +128,10 @@ def checkpoint_folder(warehouse: Warehouse | None, root: Path, name: str, condit
 
 
 def world_model_folder(warehouse: Warehouse | None, root: Path, name: str | None) -> Path:
-    """A post-trained world model: a checkpoint folder, an id prefix, or None for the newest.
-    Its config must name the tokenizer and frame size it was trained with."""
-    from tasks.world import checkpoints
+    """A post-trained world model of either family (``tasks.world.family``): a checkpoint folder,
+    an id prefix, or None for the newest. Its config must name the tokenizer and frame size it was
+    trained with."""
+    from tasks.world.family import read_world_config
 
     if name:
         folder = checkpoint_folder(warehouse, root, name, POSTTRAINED_WORLD_MODEL, "world model")
@@ -140,7 +141,7 @@ def world_model_folder(warehouse: Warehouse | None, root: Path, name: str | None
             raise StepMissing("no post-trained world model in lineage: run `worldline train` first")
         folder = integrity.path_of(uri, Path(root).resolve()).parent
         verified_checkpoint(warehouse, root, folder)
-    config = checkpoints.read_config(folder)
+    config = read_world_config(folder)
     if missing := [key for key in ("tokenizer", "size") if key not in config]:
         raise CheckpointError(f"{folder / CONFIG_FILE}: not a post-trained world model's config "
                               f"(no {', '.join(missing)})")

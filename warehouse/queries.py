@@ -9,6 +9,7 @@ from collections.abc import Sequence
 
 from warehouse.store import Warehouse
 
+# Either family: a diffusion world model's checkpoint is a world_model too, with attrs family = 'diffusion'.
 POSTTRAINED_WORLD_MODEL = "attrs->>'model' = 'world_model' AND attrs->>'phase' = 'posttrain'"
 BC_POLICY = "attrs->>'model' = 'bc-policy'"
 VISION_POLICY = "attrs->>'model' = 'vision-policy'"

@@ -62,6 +62,11 @@ def closed_loop(checkpoint: Path | str, request: ClosedLoopRequest, policy: Fram
     from tasks.world.heldout import decode
 
     model, tokenizer, size = _load(str(Path(checkpoint).resolve()), str(Path(root).resolve()), device)
+    from tasks.world.family import is_diffusion
+
+    if is_diffusion(model):
+        raise WorldModelUnavailable(f"{checkpoint}: a diffusion world model; closed loop drives autoregressive "
+                                    "ones only")
     if not model.config.action_conditioned:
         raise WorldModelUnavailable(f"{checkpoint}: the world model is not action-conditioned, so no policy "
                                     "can drive it (post-train it on episodes first)")

@@ -154,15 +154,18 @@ def world_model_mismatch(folder: Path | str, manifest: ScenarioManifest, camera:
     """What in a world-model checkpoint does not fit the panel of ``manifest`` seen through
     ``camera``, in words (None: nothing): the camera it was post-trained on, its tokenizer,
     and the action layout; with ``driven``, also that it takes actions at all. Reads the
-    configs (and one training episode's step table when it is still there), no weights."""
+    configs (and one training episode's step table when it is still there), no weights. Either
+    family (``tasks.world.family``): a diffusion model's tokenizer must be continuous, with its
+    latent channels; closed loop (``driven``) drives autoregressive models only."""
     from models.tokenizer import TokenizerConfig
-    from models.world_model import WorldModelConfig
     from tasks.checkpoint_files import CheckpointError, model_config, read_config
     from tasks.world.data import read_steps
+    from tasks.world.family import DIFFUSION, family_of, read_world_config
+    from tasks.world.family import model_config as world_config
 
     try:
-        body = read_config(Path(folder), "world_model", "world-model checkpoint")
-        config = model_config(WorldModelConfig, body, "world_model", Path(folder))
+        body = read_world_config(Path(folder))
+        config = world_config(folder, body)
         tok_path = Path(body.get("tokenizer", ""))
         tok_path = tok_path if tok_path.is_absolute() else Path(root) / tok_path
         tok = model_config(TokenizerConfig, read_config(tok_path, "tokenizer", "tokenizer checkpoint"), "tokenizer",
@@ -172,7 +175,16 @@ def world_model_mismatch(folder: Path | str, manifest: ScenarioManifest, camera:
     trained_on = body.get("camera")
     if trained_on and trained_on != camera:
         return f"it was post-trained on camera {trained_on}; the panel's camera is {camera}"
-    if (tok.codebook_size, tok.temporal_compression) != (config.codebook_size, config.temporal_compression):
+    if family_of(body) == DIFFUSION:
+        reads = (tok.variant, tok.latent_channels, tok.temporal_compression)
+        if reads != ("continuous", config.latent_channels, config.temporal_compression):
+            return (f"its tokenizer {tok_path} is {tok.variant} with {tok.code_channels} channels and temporal "
+                    f"compression {tok.temporal_compression}; the diffusion model reads continuous latents of "
+                    f"{config.latent_channels} channels and {config.temporal_compression}")
+        if driven:
+            return ("it is a diffusion world model; closed loop ({in_world_model}) drives autoregressive world "
+                    "models only")
+    elif (tok.codebook_size, tok.temporal_compression) != (config.codebook_size, config.temporal_compression):
         return (f"its tokenizer {tok_path} has codebook {tok.codebook_size} and temporal compression "
                 f"{tok.temporal_compression}; the model reads codebook {config.codebook_size} and "
                 f"{config.temporal_compression}")

@@ -165,24 +165,53 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
-def _cached_codes(video: Path, tokenizer: VideoTokenizer, tokenizer_id: str, size: int,
-                  cache_root: Path | None) -> tuple[np.ndarray, float]:
-    """(codes, fps) of one camera video, from the cache when it holds them."""
+def cached_encoding(video: Path, encode, tokenizer_id: str, size: int, cache_root: Path | None,
+                    pattern: str = paths.EPISODE_CODES_FILE, field: str = "codes",
+                    stored=np.int32, loaded=np.int64) -> tuple[np.ndarray, float]:
+    """(``encode(frames)``, fps) of one camera video, from the cache file ``pattern`` (under
+    ``cache_root``, keyed by the tokenizer id, the video's sha256 and ``size``) when it holds them."""
     target = None
     if cache_root is not None and tokenizer_id:
-        target = paths.resolve(cache_root, paths.EPISODE_CODES_FILE, tokenizer_id=tokenizer_id,
-                               video_sha256=_sha256(video), size=size)
+        target = paths.resolve(cache_root, pattern, tokenizer_id=tokenizer_id, video_sha256=_sha256(video), size=size)
         if target.is_file():
             with np.load(target) as cached:
-                return cached["codes"].astype(np.int64), float(cached["fps"])
-    codes, fps = encode_frames(tokenizer, read_frames(video), size), frame_rate(video)
+                return cached[field].astype(loaded), float(cached["fps"])
+    values, fps = encode(read_frames(video)), frame_rate(video)
     if target is not None:
         target.parent.mkdir(parents=True, exist_ok=True)
         tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
         with open(tmp, "wb") as fh:
-            np.savez(fh, codes=codes.astype(np.int32), fps=np.float64(fps))
+            np.savez(fh, **{field: values.astype(stored)}, fps=np.float64(fps))
         os.replace(tmp, target)
-    return codes, fps
+    return values.astype(loaded), fps
+
+
+def _cached_codes(video: Path, tokenizer: VideoTokenizer, tokenizer_id: str, size: int,
+                  cache_root: Path | None) -> tuple[np.ndarray, float]:
+    """(codes, fps) of one camera video, from the cache when it holds them."""
+    return cached_encoding(video, lambda frames: encode_frames(tokenizer, frames, size), tokenizer_id, size, cache_root)
+
+
+def episode_parts(directory: Path, camera: str, temporal_compression: int, encoded, action_dim: int = 8,
+                  text: str | None = None, totals: int = 0) -> tuple[str, np.ndarray, str, np.ndarray, dict]:
+    """(key, encoded video, text, aligned actions, info) of one camera of one episode, the video
+    encoded by ``encoded(video path) -> (T' x ..., fps)``: ``load_episode`` without the type."""
+    directory = Path(directory)
+    meta = read_meta(directory)
+    video = directory / f"{camera}.mp4"
+    if not video.is_file():
+        raise FileNotFoundError(f"{directory}: no camera {camera!r} (has {', '.join(meta.get('cameras', []))})")
+    values, fps = encoded(video)
+    step_time, action = read_steps(directory)
+    t = temporal_compression
+    frames = 1 + (values.shape[0] - 1) * t
+    actions = align_actions(step_time, action, np.arange(frames) / fps, t, values.shape[0], action_dim, totals)
+    if text is None:
+        text = episode_text(meta.get("task", ""), meta.get("stressors", {}))
+    info = {"episode": str(directory), "camera": camera, "index": meta.get("index"), "seed": meta.get("seed"),
+            "success": meta.get("success"), "reason": meta.get("reason"), "fps": fps,
+            "control_steps": int(step_time.shape[0]), "frames": frames, "manifest_hash": meta.get("manifest_hash")}
+    return f"{directory.name}/{camera}", values, text, actions, info
 
 
 def load_episode(directory: Path, camera: str, tokenizer: VideoTokenizer, size: int, action_dim: int = 8,
@@ -204,22 +233,10 @@ def load_episode(directory: Path, camera: str, tokenizer: VideoTokenizer, size: 
     ``info``: episode folder, camera, index, seed, success, reason, fps, control steps,
     manifest hash and ``frames`` (the video frames encoded: ``1 + t (T' - 1)``).
     """
-    directory = Path(directory)
-    meta = read_meta(directory)
-    video = directory / f"{camera}.mp4"
-    if not video.is_file():
-        raise FileNotFoundError(f"{directory}: no camera {camera!r} (has {', '.join(meta.get('cameras', []))})")
-    codes, fps = _cached_codes(video, tokenizer, tokenizer_id, size, cache_root)
-    step_time, action = read_steps(directory)
-    t = tokenizer.config.temporal_compression
-    frames = 1 + (codes.shape[0] - 1) * t
-    actions = align_actions(step_time, action, np.arange(frames) / fps, t, codes.shape[0], action_dim, totals)
-    if text is None:
-        text = episode_text(meta.get("task", ""), meta.get("stressors", {}))
-    info = {"episode": str(directory), "camera": camera, "index": meta.get("index"), "seed": meta.get("seed"),
-            "success": meta.get("success"), "reason": meta.get("reason"), "fps": fps,
-            "control_steps": int(step_time.shape[0]), "frames": frames, "manifest_hash": meta.get("manifest_hash")}
-    return CodeSequence(key=f"{directory.name}/{camera}", codes=codes, text=text, actions=actions, info=info)
+    key, codes, text, actions, info = episode_parts(
+        directory, camera, tokenizer.config.temporal_compression,
+        lambda video: _cached_codes(video, tokenizer, tokenizer_id, size, cache_root), action_dim, text, totals)
+    return CodeSequence(key=key, codes=codes, text=text, actions=actions, info=info)
 
 
 def load_episodes(directories: Sequence[Path], tokenizer: VideoTokenizer, size: int, cameras: Sequence[str] | None = None,

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 
 from tasks.tokenize import tokens
-from tasks.world import checkpoints, data, heldout, physics
+from tasks.world import data, heldout, physics
+from tasks.world.family import is_diffusion, load_world_model
 from tasks.world.data import CodeSequence, read_meta
 from tasks.world.geometry import PinholeCamera, sampson_table
 from tasks.world.report import fmt
@@ -42,15 +43,22 @@ def render_heldout(scenario, seed: int, camera: str, others: list[str]) -> dict[
 
 def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, list[tuple[int, heldout.Truth]]],
                     cameras: dict[str, PinholeCamera], size: int, text: str, context: int, horizon: int, stride: int,
-                    move_m: float, shuffle_seed: int, trained: list[Path], tokenizer_id: str, root: Path
-                    ) -> tuple[dict[str, list[physics.Window]], dict]:
+                    move_m: float, shuffle_seed: int, trained: list[Path], tokenizer_id: str, root: Path,
+                    sampler_steps: int = 8) -> tuple[dict[str, list[physics.Window]], dict]:
     """Windows per camera: encode, fit colours (primary camera), roll out with true and shuffled
     actions. And teacher-forced next-frame scores on the primary camera's held-out episodes
-    beside as many of the episodes the model trained on (``trained``, that camera)."""
+    beside as many of the episodes the model trained on (``trained``, that camera): an
+    autoregressive model's only (next-code accuracy has no diffusion counterpart here; a
+    diffusion model samples with ``sampler_steps`` Euler steps)."""
     import torch
 
     torch.set_num_threads(min(2, torch.get_num_threads()))
-    model, tokenizer = checkpoints.load_checkpoint(wm_folder), tokens.load_checkpoint(tok_folder)
+    model, tokenizer = load_world_model(wm_folder), tokens.load_checkpoint(tok_folder)
+    diffusion = is_diffusion(model)
+    if tokenizer.config.variant != ("continuous" if diffusion else "discrete"):
+        raise ValueError(f"{tok_folder}: a {tokenizer.config.variant} tokenizer; the "
+                         f"{'diffusion' if diffusion else 'autoregressive'} world model at {wm_folder} reads "
+                         f"{'a continuous' if diffusion else 'a discrete'} one's {'latents' if diffusion else 'codes'}")
     if not model.config.action_conditioned:
         raise ValueError(f"{wm_folder}: not post-trained with actions; give a post-trained world model")
     out, memorising = {}, {}
@@ -58,8 +66,9 @@ def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, lis
         prepared = [heldout.prepare(f"seed{seed}", t, cameras[name], tokenizer, size, model.config.action_dim, text,
                                     totals=model.config.action_totals)
                     for seed, t in truths]
-        out[name] = heldout.predict(model, tokenizer, prepared, context, horizon, stride, move_m, shuffle_seed)
-        if not memorising:  # the primary camera comes first
+        out[name] = heldout.predict(model, tokenizer, prepared, context, horizon, stride, move_m, shuffle_seed,
+                                    sampler_steps=sampler_steps)
+        if not memorising and not diffusion:  # the primary camera comes first
             held = [CodeSequence(p.key, p.codes, p.text, p.actions) for p in prepared]
             window = window_length(held, model.config.max_frames)
             memorising["held_out"] = teacher_forced(model, held, window, stride)

@@ -85,7 +85,8 @@ def render_truth(manifest: ScenarioManifest, seed: int, camera: str, config: Sim
 @dataclass(frozen=True)
 class Prepared:
     """An episode's camera at the world model's size: frames ``N x S x S x 3`` (N = 1 + t k
-    frames the tokenizer takes), their codes ``T' x H' x W'``, its reconstruction, aligned
+    frames the tokenizer takes), their codes ``T' x H' x W'`` (a continuous tokenizer's latents
+    ``T' x C x H' x W'`` for a diffusion world model), its reconstruction, aligned
     actions ``(T' - 1) x F``, package coverage and position per frame, the colour models of
     true and decoded frames (None where the package cannot be found reliably) and the camera."""
 
@@ -106,9 +107,22 @@ class Prepared:
 
 @torch.no_grad()
 def decode(tokenizer: VideoTokenizer, codes: np.ndarray | torch.Tensor) -> np.ndarray:
-    """Codes ``T' x H' x W'`` -> frames ``(1 + t (T' - 1)) x S x S x 3`` uint8."""
+    """Codes ``T' x H' x W'`` (a discrete tokenizer) or latents ``T' x C x H' x W'`` (a
+    continuous one) -> frames ``(1 + t (T' - 1)) x S x S x 3`` uint8."""
+    if tokenizer.config.variant == "continuous":
+        latents = torch.as_tensor(codes, dtype=torch.float32).transpose(0, 1)[None]
+        return to_uint8(tokenizer.eval().decode(latents)[0])
     codes = torch.as_tensor(codes, dtype=torch.int64)[None]
     return to_uint8(tokenizer.eval().decode(codes)[0])
+
+
+def encode(tokenizer: VideoTokenizer, frames: np.ndarray, size: int) -> np.ndarray:
+    """Frames -> codes ``T' x H' x W'`` (discrete) or latents ``T' x C x H' x W'`` (continuous)."""
+    if tokenizer.config.variant == "continuous":
+        from tasks.world.diffusion import encode_latents
+
+        return encode_latents(tokenizer, frames, size)
+    return encode_frames(tokenizer, frames, size)
 
 
 def prepare(key: str, truth: Truth, camera: PinholeCamera, tokenizer: VideoTokenizer, size: int, action_dim: int,
@@ -121,7 +135,7 @@ def prepare(key: str, truth: Truth, camera: PinholeCamera, tokenizer: VideoToken
     (`physics.MIN_VISIBLE`): a decoder does not keep the slivers the arm leaves visible.
     """
     t = tokenizer.config.temporal_compression
-    codes = encode_frames(tokenizer, truth.frames, size)
+    codes = encode(tokenizer, truth.frames, size)
     n = 1 + (codes.shape[0] - 1) * t
     frames = square(truth.frames[:n], size)
     recon = decode(tokenizer, codes)
@@ -146,13 +160,30 @@ def window_starts(latent_frames: int, context: int, horizon: int, stride: int) -
     return list(range(0, latent_frames - context - horizon + 1, stride))
 
 
+def _rollout(world_model, context: np.ndarray, horizon: int, text: list[str], actions: np.ndarray,
+             sampler_steps: int, seed: int) -> torch.Tensor:
+    """A batch of windows rolled out: codes ``B x c x H' x W'`` by the autoregressive model
+    (greedy), or latents ``B x c x C x H' x W'`` by the diffusion one (``sampler_steps`` Euler
+    steps from noise drawn with ``seed`` on the CPU), in the layout they came in."""
+    from models.diffusion_world import DiffusionWorldModel
+
+    if isinstance(world_model, DiffusionWorldModel):
+        generator = torch.Generator().manual_seed(seed)
+        out = world_model.eval().rollout(torch.from_numpy(context).transpose(1, 2), horizon, text=text,
+                                         actions=torch.from_numpy(actions), steps=sampler_steps, generator=generator)
+        return out.transpose(1, 2)
+    return world_model.eval().rollout(torch.from_numpy(context), horizon, text=text, actions=torch.from_numpy(actions))
+
+
 @torch.no_grad()
 def predict(world_model: WorldModel, tokenizer: VideoTokenizer, episodes: list[Prepared], context: int, horizon: int,
             stride: int, move_threshold_m: float = 0.02, shuffle_seed: int = 0,
-            batch: int = 16) -> list[physics.Window]:
+            batch: int = 16, sampler_steps: int = 8) -> list[physics.Window]:
     """Every window of every episode: the model's rollout of `horizon` latent frames after
     `context` true ones, with the true actions and with shuffled ones (`physics.shuffle_actions`
-    over all windows), decoded after the episode's true codes up to the context."""
+    over all windows), decoded after the episode's true codes up to the context. A diffusion
+    world model (``Prepared.codes`` then holds latents) samples with ``sampler_steps`` steps, the
+    true and the shuffled actions' windows from the same noise (so only the actions differ)."""
     t = tokenizer.config.temporal_compression
     spans = [(e, s) for e in episodes for s in window_starts(e.codes.shape[0], context, horizon, stride)]
     if not spans:
@@ -165,9 +196,9 @@ def predict(world_model: WorldModel, tokenizer: VideoTokenizer, episodes: list[P
         out = []
         for i in range(0, len(spans), batch):
             part = spans[i:i + batch]
-            ctx = torch.from_numpy(np.stack([e.codes[s:s + context] for e, s in part]))
-            out.append(world_model.eval().rollout(ctx, horizon, text=[e.text for e, _ in part],
-                                                  actions=torch.from_numpy(acts[i:i + batch])))
+            ctx = np.stack([e.codes[s:s + context] for e, s in part])
+            out.append(_rollout(world_model, ctx, horizon, [e.text for e, _ in part], acts[i:i + batch],
+                                sampler_steps, i))
         predicted[name] = torch.cat(out).numpy()
     windows = []
     for i, (e, s) in enumerate(spans):

@@ -31,13 +31,21 @@ def known(warehouse: Warehouse, kind: str, path: Path, root: Path, what: str, hi
     return artifact_id, mh
 
 
-def tokenizer_checkpoint(warehouse: Warehouse, root: Path, tokenizer: str | None) -> tuple[Path, str, TokenizerConfig]:
-    """(folder, artifact id, config) of a discrete tokenizer checkpoint: a checkpoint folder, a
+def tokenizer_checkpoint(warehouse: Warehouse, root: Path, tokenizer: str | None,
+                         variant: str = "discrete") -> tuple[Path, str, TokenizerConfig]:
+    """(folder, artifact id, config) of a ``variant`` tokenizer checkpoint (discrete for the
+    autoregressive world model, continuous for the diffusion one): a checkpoint folder, a
     checkpoint id (its first 12+ hex digits), or None for the newest one in lineage with token shards."""
-    folder, checkpoint_id = tokenizer_folder(warehouse, root, tokenizer)
+    # A diffusion run named a tokenizer of the wrong variant: found by id all the same, to say so below.
+    lookup = None if tokenizer and variant != "discrete" else variant
+    folder, checkpoint_id = tokenizer_folder(warehouse, root, tokenizer, lookup)
     config = tokens.load_checkpoint(folder).config
-    if config.variant != "discrete":
-        raise ValueError(f"tokenizer {checkpoint_id} is {config.variant}: the world model reads a discrete one's codes")
+    if config.variant != variant:
+        if variant == "discrete":
+            raise ValueError(f"tokenizer {checkpoint_id} is {config.variant}: the world model reads a discrete one's "
+                             "codes")
+        raise ValueError(f"tokenizer {checkpoint_id} is {config.variant}: the diffusion world model reads a "
+                         f"{variant} one's latents")
     return folder, checkpoint_id, config
 
 
@@ -65,7 +73,8 @@ def tokenizer_folder(warehouse: Warehouse, root: Path, tokenizer: str | None,
         return integrity.path_of(found, root).parent, checkpoint_id
     newest = queries.newest_encoding_checkpoint(warehouse, which)
     if newest is None:
-        raise StepMissing("no discrete tokenizer with token shards in lineage: run `worldline tokenize` first")
+        raise StepMissing(f"no {variant or 'trained'} tokenizer with token shards in lineage: run `worldline "
+                          "tokenize` first")
     checkpoint_id, found = checkpoint_by_id(warehouse, newest, which, "tokenizer", root)
     return integrity.path_of(found, root).parent, checkpoint_id
 
@@ -85,9 +94,9 @@ def token_shards(warehouse: Warehouse, root: Path, tokenizer_id: str,
     return shards
 
 
-def shape(sequences: list[data.CodeSequence]) -> tuple[tuple[int, int], int]:
-    """(latent grid, frame size) the token sequences share; ValueError when they mix them."""
-    grids = {s.codes.shape[1:] for s in sequences}
+def shape(sequences: list) -> tuple[tuple[int, int], int]:
+    """(latent grid, frame size) the token sequences (codes or latents) share; ValueError when they mix them."""
+    grids = {s.codes.shape[1:] if hasattr(s, "codes") else s.latents.shape[2:] for s in sequences}
     sizes = {s.info["size"] for s in sequences}
     if len(grids) != 1 or len(sizes) != 1:
         raise ValueError(f"token shards mix latent grids {sorted(grids)} or frame sizes {sorted(sizes)}")

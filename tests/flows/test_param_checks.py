@@ -60,6 +60,15 @@ CHECKS = [
      "bf16 runs only on a CUDA device"),
     (train, {"manifest": PUSH, "preset_name": "huge"}, ["train", PUSH, "--preset", "huge"],
      "unknown world model preset 'huge'"),
+    (train, {"manifest": PUSH, "family": "diffusion"}, ["train", PUSH, "--family", "diffusion"],
+     ("--preset 'tiny-wm' is an autoregressive (*-wm) world model preset; --family diffusion takes small-dwm, tiny-dwm",
+      "preset_name 'tiny-wm' is an autoregressive (*-wm) world model preset; family diffusion takes small-dwm, "
+      "tiny-dwm")),
+    (train, {"manifest": PUSH, "preset_name": "small-dwm"}, ["train", PUSH, "--preset", "small-dwm"],
+     "'small-dwm' is a diffusion (*-dwm) world model preset"),
+    (train, {"manifest": PUSH, "family": "diffusion", "preset_name": "tiny-dwm", "self_condition": 0.5},
+     ["train", PUSH, "--family", "diffusion", "--preset", "tiny-dwm", "--self-condition", "0.5"],
+     "the autoregressive world model's option"),
     (train_policy, {"manifest": PUSH, "preset_name": "huge"}, ["train-policy", PUSH, "--preset", "huge"],
      "unknown state policy preset 'huge'"),
     (train_transfer, {"manifest": PUSH, "preset_name": "huge"}, ["train-transfer", PUSH, "--preset", "huge"],
@@ -137,6 +146,31 @@ def test_behaviour_cloning_needs_an_arm_from_the_cli_and_in_the_flow(flow, model
     with pytest.raises(Refused, match="drives arms"):  # the check the flow makes on the manifest it loads
         model.of(flow.validate_parameters({"manifest": BASE})).check_scenario(load(MANIFESTS / "mobile_rig_aisle.yaml"))
     assert "check_scenario(" in inspect.getsource(flow.fn)
+
+
+def test_a_tokenizer_of_the_other_variant_is_refused_for_each_family(data_root, tmp_path):
+    """The diffusion world model denoises a continuous tokenizer's latents: a discrete tokenizer is
+    refused in one line, by the CLI (exit 2) and by the flow before it writes anything; the
+    autoregressive family keeps its own refusal of a continuous one."""
+    from models.tokenizer import VideoTokenizer
+    from models.tokenizer import preset as tokenizer_preset
+    from tasks.tokenize.tokens import save_checkpoint
+
+    for name in ("tiny-dv4x8x8", "tiny-cv4x8x8"):
+        save_checkpoint(VideoTokenizer(tokenizer_preset(name)), tmp_path / name)
+    discrete, continuous = str(tmp_path / "tiny-dv4x8x8"), str(tmp_path / "tiny-cv4x8x8")
+    cases = [(["--family", "diffusion", "--preset", "tiny-dwm", "--tokenizer", discrete],
+              f"--tokenizer {discrete}: a discrete tokenizer; --family diffusion needs a continuous one"),
+             (["--tokenizer", continuous], f"{continuous}: a continuous tokenizer; a discrete one is needed here")]
+    for args, said in cases:
+        result = runner.invoke(app, ["train", PUSH, *args], terminal_width=400)
+        assert result.exit_code == 2 and said in " ".join(result.output.split()), result.output
+        assert len(result.output.strip().splitlines()) == 1
+    with pytest.raises(Refused, match=re.escape(f"tokenizer {discrete}: a discrete tokenizer; family diffusion "
+                                                "needs a continuous one")) as refused:
+        train.fn(manifest=PUSH, family="diffusion", preset_name="tiny-dwm", tokenizer=discrete)
+    assert "\n" not in str(refused.value)
+    assert not (data_root / "lineage.duckdb").exists()
 
 
 def test_train_checks_its_episodes_in_the_flow_as_in_the_cli():

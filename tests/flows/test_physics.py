@@ -144,3 +144,68 @@ def test_physics_refuses_seeds_the_model_trained_on(prefect_harness, data_root, 
         evaluate_physics(str(path), str(wm_folder), str(tok_folder), episodes=1, first_seed=manifest.seed)
     cli = CliRunner().invoke(app, ["evaluate", "physics", str(path), "--world-model", str(data_root / "nowhere")])
     assert cli.exit_code == 2 and "not a checkpoint id" in cli.output
+
+
+@pytest.fixture(scope="module")
+def diffusion_models(tmp_path_factory, scenario):
+    """A continuous tokenizer trained 5 steps and a diffusion world model post-trained 5 steps on
+    seed 11's latents, saved as flows/train.py saves them (config key diffusion_world_model)."""
+    from models.diffusion_world import post_trainable as diffusion_trainable
+    from models.diffusion_world import preset as diffusion_preset
+    from tasks.world import diffusion
+
+    _, manifest = scenario
+    folder = tmp_path_factory.mktemp("diffusion")
+    ep = rollout(manifest, manifest.seed)
+    torch.manual_seed(0)
+    tokenizer = VideoTokenizer(tokenizer_preset("tiny-cv4x8x8"))
+    train_tokenizer(tokenizer, [square(ep.frames["overhead"], SIZE)],
+                    TrainConfig(steps=5, batch_size=1, clip_frames=5, size=SIZE, crop=32, threads=1, log_every=5))
+    tok_folder = folder / "tokenizer"
+    tokens.save_checkpoint(tokenizer, tok_folder)
+    config = diffusion_preset("tiny-dwm", latent_channels=tokenizer.config.latent_channels, max_height=SIZE // 8,
+                              max_width=SIZE // 8)
+    model = diffusion_trainable(diffusion.DiffusionWorldModel(config))
+    latents = diffusion.encode_latents(tokenizer, ep.frames["overhead"], SIZE)
+    n = 1 + 4 * (latents.shape[0] - 1)
+    actions = align_actions(ep.time, ep.action, np.arange(n) / 30.0, 4, latents.shape[0], config.action_dim)
+    diffusion.train_diffusion(model, [diffusion.LatentSequence("seed11", latents, "push", actions)],
+                              diffusion.DiffusionTrainConfig(steps=5, batch_size=2, threads=1, log_every=5))
+    trained_on = write_episode(ep, folder, "0" * 64, 0).directory
+    wm_folder = folder / "world_model"
+    diffusion.save_checkpoint(model, wm_folder, {"phase": "posttrain", "size": SIZE, "tokenizer": str(tok_folder),
+                                                 "episodes": [str(trained_on)]})
+    return wm_folder, tok_folder
+
+
+def test_physics_flow_evaluates_a_diffusion_world_model(prefect_harness, data_root, scenario, diffusion_models, models):
+    """The same table, checks and lineage for the diffusion family (sampled with --sampler-steps
+    Euler steps; no teacher-forced scores, an autoregressive quantity), and a tokenizer of the
+    other variant named in one line."""
+    path, _ = scenario
+    wm_folder, tok_folder = diffusion_models
+    result = evaluate_physics(str(path), str(wm_folder), str(tok_folder), episodes=1, horizon=2, sampler_steps=2)
+    assert result["episodes"] == 1 and result["context"] == 6 and result["windows"] == 6
+    folder = data_root / "evaluations" / result["evaluation_id"]
+    body = json.loads((folder / "physics.json").read_text())
+    assert {(r["horizon"], r["method"]) for r in body["rows"]} == {(h, m) for h in range(1, 9)
+                                                                  for m in ("model", "shuffled", "floor", "ceiling")}
+    assert all(r["windows"] == 6 and r["psnr"] > 5 for r in body["rows"])
+    assert body["params"]["sampler_steps"] == 2 and body["teacher_forced"] == {}
+    assert {r["pair"] for r in body["sampson"]} == {"overhead-overhead_b"}
+    assert (folder / "physics.md").is_file() and (folder / "strip.png").is_file()
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, edges = wh.query("SELECT e.relation, p.kind FROM edges e LEFT JOIN artifacts p "
+                            "ON p.artifact_id = e.parent_id WHERE e.child_id = $id ORDER BY 1",
+                            {"id": result["evaluation_id"]})
+    assert [(r, k) for r, k in edges] == [("decoded_by", "checkpoint"), ("evaluated", "checkpoint"),
+                                          ("evaluated_on", "manifest")]
+    assert lineage_problems(Settings().warehouse_path) == {}
+
+    cli = CliRunner().invoke(app, ["evaluate", "physics", str(path), "--world-model", str(wm_folder), "--tokenizer",
+                                   str(tok_folder), "--episodes", "1", "--horizon", "2", "--sampler-steps", "2"])
+    assert cli.exit_code == 0 and result["evaluation_id"] in cli.output, cli.output  # done before
+    _, ar_tokenizer = models
+    wrong = CliRunner().invoke(app, ["evaluate", "physics", str(path), "--world-model", str(wm_folder),
+                                     "--tokenizer", str(ar_tokenizer)], terminal_width=400)
+    assert wrong.exit_code == 2 and "a discrete tokenizer; a continuous one is needed here" in wrong.output

@@ -145,3 +145,81 @@ def test_cli_refuses_bad_train_arguments(data_root, tmp_path):
                      ["tokenize", str(tmp_path), "--init", name]):
             result = runner.invoke(app, args)
             assert result.exit_code == 2 and problem in result.output, (args, result.output)
+
+
+def test_train_diffusion_on_a_continuous_tokenizer_records_lineage_and_skips_on_rerun(prefect_harness, data_root,
+                                                                                      tmp_path):
+    """--family diffusion: the continuous tokenizer's latent shards pre-train the diffusion world
+    model, the episodes (encoded to latents, cached beside the codes cache) post-train it; the
+    checkpoints, edges and curves land in lineage as the autoregressive model's do (loss only),
+    a re-run skips both, and a policy evaluation judges frames it generates."""
+    from models.diffusion_world import DiffusionWorldModel
+    from tasks.world import diffusion
+
+    manifest = _small_manifest(tmp_path)
+    mh = simulate(str(manifest), 2)["manifest_hash"]
+    config = tmp_path / "curate.yaml"
+    config.write_text("overlay_text: {action: tag}\n")
+    curated = curate([str(data_root / "episodes")], str(manifest), str(config))
+    tok = tokenize(mh, "tiny-cv4x8x8", steps=2, size=32, batch_size=2)
+
+    result = train(str(manifest), preset_name="tiny-dwm", family="diffusion", pretrain_steps=3, posttrain_steps=3)
+    assert result["pretrained"] and result["posttrained"] and result["tokenizer_id"] == tok["checkpoint_id"]
+    assert result["episodes"] == 2 and result["episode_videos"] == 2 and result["sequences"] == curated["clips"]
+    for phase in ("pretrain", "posttrain"):
+        folder = Path(result[f"{phase}_checkpoint"])
+        assert (folder / "model.safetensors").is_file() and list((folder / "tensorboard").glob("events.out.tfevents.*"))
+        model = diffusion.load_checkpoint(folder)
+        assert isinstance(model, DiffusionWorldModel) and model.config.action_conditioned == (phase == "posttrain")
+        assert model.config.latent_channels == 16 and (model.config.max_height, model.config.max_width) == (4, 4)
+        body = diffusion.read_config(folder)
+        assert body["phase"] == phase and "world_model" not in body and body["size"] == 32
+        assert folder.parent.name == "tiny-dwm"  # the same folder layout: checkpoints/<preset>/<id>
+    assert list((data_root / "cache" / "episode_latents").rglob("*.npz"))
+    assert not (data_root / "cache" / "episode_codes").exists()
+
+    pre, post = result["pretrain_checkpoint_id"], result["posttrain_checkpoint_id"]
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, ckpts = wh.query("SELECT artifact_id, attrs->>'phase', attrs->>'family', manifest_hash FROM artifacts "
+                            "WHERE kind = 'checkpoint' AND attrs->>'model' = 'world_model' ORDER BY 2")
+        _, edges = wh.query("SELECT e.child_id, e.relation, p.kind, count(*) FROM edges e "
+                            "JOIN artifacts p ON p.artifact_id = e.parent_id WHERE e.child_id IN ($pre, $post) "
+                            "GROUP BY ALL ORDER BY 1, 2, 3", {"pre": pre, "post": post})
+        _, n_tokens = wh.query("SELECT count(*) FROM artifacts WHERE kind = 'token_shard'")
+        _, metrics = wh.query("SELECT subject_id, name, step FROM metrics WHERE subject_id IN ($pre, $post)",
+                              {"pre": pre, "post": post})
+    assert [(i, p, f) for i, p, f, _ in ckpts] == [(post, "posttrain", "diffusion"), (pre, "pretrain", "diffusion")]
+    assert ckpts[0][3] == mh
+    assert sorted((c == post, rel, kind, n) for c, rel, kind, n in edges) == sorted([
+        (False, "trained_on", "checkpoint", 1), (False, "trained_on", "token_shard", n_tokens[0][0]),
+        (True, "posttrained_from", "checkpoint", 1), (True, "trained_on", "checkpoint", 1),
+        (True, "trained_on", "episode", 2)])
+    assert sorted(metrics) == sorted((c, "train_loss", 3) for c in (pre, post))
+    assert lineage_problems(Settings().warehouse_path) == {}
+
+    again = runner.invoke(app, ["train", str(manifest), "--family", "diffusion", "--preset", "tiny-dwm",
+                                "--steps", "3", "--post-steps", "3"])
+    assert again.exit_code == 0, again.output
+    assert f"pre-trained {pre} (already trained), post-trained {post} (already trained)" in " ".join(again.output.split())
+    # The autoregressive family finds no discrete tokenizer here; it does not take the continuous one.
+    ar = runner.invoke(app, ["train", str(manifest), "--steps", "3", "--post-steps", "3"])
+    assert ar.exit_code == 3 and "no discrete tokenizer with token shards" in ar.output
+
+    # evaluate policies --world-model takes the diffusion checkpoint (by id: lineage finds it);
+    # closed loop in it is refused in one line.
+    from tests.flows.test_evaluate import vision_checkpoint
+
+    grid = tmp_path / "grid.yaml"
+    grid.write_text("name: one\ncells: [{name: nominal}]\nepisodes: 1\n")
+    done = runner.invoke(app, ["evaluate", "policies", str(manifest), "--grid", str(grid), "--policy", "scripted",
+                               "--world-model", post[:16], "--no-detector"])
+    assert done.exit_code == 0, done.output
+    closed = runner.invoke(app, ["evaluate", "policies", str(manifest), "--grid", str(grid), "--world-model",
+                                 post[:16], "--in-world-model", "--policy",
+                                 f"vision:{vision_checkpoint(tmp_path, manifest)}"], terminal_width=400)
+    assert closed.exit_code == 2 and ("it is a diffusion world model; closed loop (--in-world-model) drives "
+                                      "autoregressive world models only") in " ".join(closed.output.split())
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, judged = wh.query("SELECT count(*) FROM edges WHERE parent_id = $p AND relation = 'world_model'",
+                             {"p": post})
+    assert judged == [(1,)]

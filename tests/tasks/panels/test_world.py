@@ -94,3 +94,66 @@ def test_the_device_changes_where_it_computes_not_what(checkpoint, monkeypatch):
         # rounding may flip, so they are not compared.
         gpu = world_model_rollout(checkpoint / "wm", _request(), root=checkpoint, device="cuda")
         assert gpu.shape == cpu.shape and np.abs(gpu[0].astype(int) - cpu[0].astype(int)).max() <= 2
+
+
+# -- the diffusion world model behind the same seam -------------------------------------------------
+@pytest.fixture(scope="module")
+def diffusion_checkpoint(tmp_path_factory):
+    """An untrained tiny continuous tokenizer and action-conditioned diffusion world model, saved
+    as flows/train.py saves them (config key diffusion_world_model), and a discrete tokenizer."""
+    from models.diffusion_world import DiffusionWorldModel
+    from models.diffusion_world import preset as diffusion_preset
+    from tasks.world.diffusion import save_checkpoint as save_diffusion
+
+    torch.manual_seed(0)
+    root = tmp_path_factory.mktemp("dwm")
+    tokenizer = VideoTokenizer(tokenizer_preset("tiny-cv4x8x8"))
+    save_tokenizer(tokenizer, root / "tok")
+    save_tokenizer(VideoTokenizer(tokenizer_preset("tiny-dv4x8x8")), root / "discrete")
+    c = tokenizer.config
+    model = DiffusionWorldModel(diffusion_preset("tiny-dwm", latent_channels=c.latent_channels, max_frames=4,
+                                                 temporal_compression=c.temporal_compression,
+                                                 max_height=SIZE // 8, max_width=SIZE // 8)).add_action_conditioning()
+    with torch.no_grad():  # wake the zero-initialised action encoder and the AdaLN-Zero head
+        for p in [*model.action_encoder.parameters(), *model.final_ada.parameters(), *model.head.parameters()]:
+            torch.nn.init.normal_(p, std=0.5)
+    save_diffusion(model, root / "wm", {"tokenizer": "tok", "size": SIZE, "phase": "posttrain"})
+    save_diffusion(model, root / "wrong", {"tokenizer": "discrete", "size": SIZE, "phase": "posttrain"})
+    return root
+
+
+def test_a_diffusion_checkpoint_rolls_out_through_the_same_seam(diffusion_checkpoint, monkeypatch):
+    from models.diffusion_world import DiffusionWorldModel
+    from tasks.panels import world
+
+    root = diffusion_checkpoint
+    out = world_model_rollout(root / "wm", _request(), root=root)
+    assert out.shape == (13, 48, 64, 3) and out.dtype == np.uint8  # 1 + 3 latent frames of 4, as the AR model's
+    assert not out[:, :, :8].any() and out[:, :, 8:56].any()
+    assert np.array_equal(out, world_model_rollout(root / "wm", _request(), root=root))  # seed 0 both times
+    other = world_model_rollout(root / "wm", _request(), root=root, seed=1)
+    assert np.array_equal(out[0], other[0]) and not np.array_equal(out[1:], other[1:])  # the noise, from the seed
+    moved = world_model_rollout(root / "wm", _request(actions=np.full((40, 5), 0.5)), root=root)
+    assert not np.array_equal(out[1:], moved[1:])  # the actions reach it
+
+    seen = []
+    real = DiffusionWorldModel.rollout
+    monkeypatch.setattr(DiffusionWorldModel, "rollout", lambda self, *a, **kw: seen.append(kw) or real(self, *a, **kw))
+    world_model_rollout(root / "wm", _request(), root=root)
+    world_model_rollout(root / "wm", _request(), root=root, sampler_steps=2)
+    assert [kw["steps"] for kw in seen] == [world.SAMPLER_STEPS, 2] and world.SAMPLER_STEPS == 8
+    assert seen[0]["actions"].shape == (1, 3, 32) and seen[0]["text"] == ["push the package"]
+
+
+def test_a_diffusion_checkpoint_with_a_discrete_tokenizer_is_named(diffusion_checkpoint):
+    with pytest.raises(WorldModelUnavailable, match="its tokenizer is discrete; a diffusion world model reads a "
+                                                    "continuous"):
+        world_model_rollout(diffusion_checkpoint / "wrong", _request(), root=diffusion_checkpoint)
+
+
+def test_closed_loop_refuses_a_diffusion_world_model_in_one_line(diffusion_checkpoint):
+    from tasks.panels.closed_loop import ClosedLoopRequest, closed_loop
+
+    request = ClosedLoopRequest(camera="overhead", context=_request().context, control_hz=50, fps=30, frames=5)
+    with pytest.raises(WorldModelUnavailable, match="a diffusion world model; closed loop drives autoregressive"):
+        closed_loop(diffusion_checkpoint / "wm", request, lambda frame, t: np.zeros(5), diffusion_checkpoint)

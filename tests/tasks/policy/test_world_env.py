@@ -22,7 +22,7 @@ from tasks.sim.scene import build_scene
 from tasks.world.checkpoints import load_checkpoint, read_config, save_checkpoint
 
 from tests.support import MANIFESTS
-from tests.tasks.panels.test_world import checkpoint  # noqa: F401 (the module fixture)
+from tests.tasks.panels.test_world import checkpoint, diffusion_checkpoint  # noqa: F401 (the module fixtures)
 
 PUSH = load(MANIFESTS / "conveyor_push.yaml").model_copy(update={"horizon_s": 1.0})
 
@@ -129,3 +129,15 @@ def test_a_world_model_that_does_not_fit_the_panel_is_named(checkpoint, tmp_path
         pq.write_table(steps, tmp_path / "ep" / "steps.parquet")
         assert read_steps(tmp_path / "ep")[1].shape == (2, 7)
     assert said in world_model_mismatch(tmp_path / "wm", PUSH, "overhead", tmp_path, driven=True)
+
+
+def test_a_diffusion_world_model_is_checked_against_the_panel_too(diffusion_checkpoint):  # noqa: F811
+    """The same check reads a diffusion checkpoint (config key diffusion_world_model): its
+    tokenizer must be continuous, and closed loop drives autoregressive models only."""
+    root = diffusion_checkpoint
+    assert world_model_mismatch(root / "wm", PUSH, "overhead", root) is None
+    said = world_model_mismatch(root / "wrong", PUSH, "overhead", root)
+    assert ("is discrete with 4 channels and temporal compression 4; the diffusion model reads continuous latents "
+            "of 16") in said
+    assert "closed loop ({in_world_model}) drives autoregressive world models only" in world_model_mismatch(
+        root / "wm", PUSH, "overhead", root, driven=True)
