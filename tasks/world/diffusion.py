@@ -28,7 +28,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from models.diffusion_world import DiffusionWorldConfig, DiffusionWorldModel, post_trainable
 from models.tokenizer import VideoTokenizer
-from models.world_model import action_scale
+from models.world_model import action_scale, text_ids
 from tasks import checkpoint_files
 from tasks.device import Runtime, autocast, prepare
 from tasks.tokenize.data import square, usable_frames
@@ -174,7 +174,7 @@ def train_diffusion(model: DiffusionWorldModel, sequences: Sequence[LatentSequen
         actions = actions.to(device, non_blocking=True) if actions is not None else None
         inputs, s, flags, target = noised_window(latents, gen, config.time_sampling, config.min_context)
         with autocast(runtime, device):
-            velocity = call(inputs, s, flags, texts, actions)
+            velocity = call(inputs, s, flags, text_ids(texts, model.config).to(device), actions)
         loss = flow_matching_loss(velocity.float(), target, flags)
         opt.zero_grad(set_to_none=True)
         loss.backward()

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from models.world_model import WorldModel, action_scale, next_frame_loss, post_trainable
+from models.world_model import WorldModel, action_scale, next_frame_loss, post_trainable, text_ids
 from tasks.device import Runtime, autocast, model_device, prepare
 from tasks.world.data import CodeSequence
 
@@ -195,8 +195,11 @@ def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], conf
         codes = codes.to(device, non_blocking=True)
         actions = actions.to(device, non_blocking=True) if actions is not None else None
         inputs = own_inputs(model, codes, texts, actions, config.self_condition, gen) if config.self_condition else codes
+        # Word ids, not strings, go into the (maybe compiled) model: a compiled model guards on a
+        # string's value and would recompile for every caption it meets.
+        ids = text_ids(texts, model.config).to(device, non_blocking=True)
         with autocast(runtime, device):
-            logits = call(inputs, texts, actions)
+            logits = call(inputs, ids, actions)
         loss = next_frame_loss(logits.float(), codes, config.change_weight)
         opt.zero_grad(set_to_none=True)
         loss.backward()

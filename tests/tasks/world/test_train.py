@@ -189,3 +189,26 @@ def test_posttraining_records_action_totals():
     assert post.config.action_totals == 3 and post.config.action_conditioned
     plain, _ = posttrain(_model(), _pushed(2, 4, 0), config.model_copy(update={"action_totals": 0}))
     assert plain.config.action_totals == 0
+
+
+def test_a_compiled_model_is_not_recompiled_for_every_caption(monkeypatch):
+    """Captions differ per clip and episode; a compiled model fed the strings guards on each value
+    and recompiles (seen on a GPU: the recompile limit hit within a few steps). Word ids go in."""
+    from tasks.device import Runtime
+
+    compiled, real = [], torch.compile
+
+    def counting(model, **_):
+        def backend(graph, example_inputs):
+            compiled.append(graph)
+            return graph.forward
+        return real(model, backend=backend)
+
+    monkeypatch.setattr(torch, "compile", counting)
+    torch._dynamo.reset()
+    sequences = [CodeSequence(key=f"s{i}", codes=s.codes, text=f"a clip with caption number {i}")
+                 for i, s in enumerate(_sequences(n=6))]
+    config = WorldTrainConfig(steps=6, batch_size=1, text_dropout=0.0, threads=1)
+    train_world_model(_model(), sequences, config, runtime=Runtime(device="cpu", compile=True))
+    torch._dynamo.reset()
+    assert 1 <= len(compiled) <= 2, f"{len(compiled)} graphs compiled for 6 captions"
