@@ -59,13 +59,19 @@ MODEL_KEYS = ("width", "layers", "heads")
 
 
 def _plain(seq: data.CodeSequence) -> dict:
-    return {"key": seq.key, "codes": seq.codes.astype(np.int16), "text": seq.text, "actions": seq.actions,
-            "info": seq.info}
+    """A sequence as tensors and plain values: a bundle loads with ``torch.load(weights_only=True)``."""
+    return {"key": seq.key, "codes": torch.from_numpy(seq.codes.astype(np.int16)), "text": seq.text,
+            "actions": None if seq.actions is None else torch.from_numpy(np.asarray(seq.actions, np.float32)),
+            "info": _jsonable(seq.info)}
+
+
+def _jsonable(info: dict) -> dict:
+    return json.loads(json.dumps(info, default=lambda v: v.item() if hasattr(v, "item") else str(v)))
 
 
 def _sequence(row: dict) -> data.CodeSequence:
-    return data.CodeSequence(key=row["key"], codes=row["codes"].astype(np.int64), text=row["text"],
-                             actions=row["actions"], info=row["info"])
+    return data.CodeSequence(key=row["key"], codes=row["codes"].numpy().astype(np.int64), text=row["text"],
+                             actions=None if row["actions"] is None else row["actions"].numpy(), info=row["info"])
 
 
 def pack(args) -> None:
@@ -149,8 +155,9 @@ def pack_raw(args) -> None:
                 video = f"episodes/{len(episodes):05d}.mp4"
                 (out / video).parent.mkdir(parents=True, exist_ok=True)
                 shutil.copyfile(folder / f"{camera}.mp4", out / video)
-                episodes.append({"key": key, "video": video, "text": text, "actions": actions,
-                                 "info": {**info, "source": n, "index": i, "folder": inputs.uri(folder, root)}})
+                episodes.append({"key": key, "video": video, "text": text, "actions": torch.from_numpy(actions),
+                                 "info": _jsonable({**info, "source": n, "index": i,
+                                                    "folder": inputs.uri(folder, root)})})
         folders += found
     torch.save({"tokenizer_preset": args.tokenizer_preset, "shards": [inputs.uri(s, root) for s in shards],
                 "action_totals": args.action_totals, "camera": args.camera, "episodes": episodes,
@@ -182,7 +189,7 @@ def tokenize_raw(raw: Path, out: Path, steps: int, size: int, device: str, compi
     from tasks.tokenize.train import TrainConfig
     from tasks.video import read_frames
 
-    body = torch.load(raw / "raw.pt", weights_only=False)
+    body = torch.load(raw / "raw.pt", weights_only=True)
     name = body["tokenizer_preset"]
     config = TrainConfig(preset=name, steps=steps, seconds=seconds, size=size, batch_size=8, seed=0, motion_weight=4.0,
                          clip_frames=1 + 2 * tokenizer_preset(name).temporal_compression, threads=2)
@@ -206,7 +213,8 @@ def tokenize_raw(raw: Path, out: Path, steps: int, size: int, device: str, compi
         codes = _encode(tokenizer, read_frames(raw / e["video"]), size).astype(np.int64)
         if codes.shape[0] != e["actions"].shape[0] + 1:
             raise SystemExit(f"{e['key']}: {codes.shape[0]} latent frames against {e['actions'].shape[0]} action rows")
-        episodes.append(data.CodeSequence(key=e["key"], codes=codes, text=e["text"], actions=e["actions"], info=e["info"]))
+        episodes.append(data.CodeSequence(key=e["key"], codes=codes, text=e["text"], actions=e["actions"].numpy(),
+                                          info=e["info"]))
     print(f"encoded {len(pretrain)} clips and {len(episodes)} episode videos in {time.perf_counter() - started:.0f} s",
           flush=True)
     grid = pretrain[0].codes.shape[1:]
@@ -232,7 +240,7 @@ def variant(text: str) -> dict:
 
 def train_one(bundle_path: str, spec: dict, out: str, device: str, compile_model: bool, threads: int) -> dict:
     torch.set_num_threads(threads)
-    bundle = torch.load(bundle_path, weights_only=False)
+    bundle = torch.load(bundle_path, weights_only=True)
     pretrain = [_sequence(r) for r in bundle["pretrain"]]
     episodes = [_sequence(r) for r in bundle["posttrain"]]
     if spec["episodes"]:
