@@ -7,7 +7,7 @@ from functools import cached_property
 from pathlib import PurePosixPath
 from typing import Annotated, Literal, Union
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_serializer, model_validator
 
 from schemas import SCHEMA_VERSION
 from schemas.hashing import content_hash
@@ -17,6 +17,25 @@ Vec3 = tuple[float, float, float]
 MAX_SIDE = 4096
 MAX_FPS = 240
 MAX_HORIZON_S = 3600.0
+# Where a drive task's waypoints may lead the base's centre (tasks/sim/scene.py): along the aisle
+# between the rack runs (x from -2 to 8 m), clear of the racks' inner faces at |y| = 1.0 m by the
+# chassis half width with its wheels (0.3 m) and a 0.1 m margin.
+AISLE_X_M = (-1.5, 7.5)
+AISLE_HALF_WIDTH_M = 0.6
+# Two cameras on the same mount closer than this, looking along directions closer than this
+# (difference of the unit view directions), have one pose: they would record the same view.
+SAME_POSITION_M = 1e-3
+SAME_DIRECTION = 1e-3
+
+
+class FieldError(ValueError):
+    """A validation error about one field below the validator's own: ``field`` is its dotted path
+    (``cameras.1.name``) relative to the model that raised it. `tasks.manifests.validated` puts it
+    in the error's location, so the one line names the field itself."""
+
+    def __init__(self, field: str, problem: str):
+        super().__init__(f"{field}: {problem}")
+        self.field, self.problem = field, problem
 
 
 class Frozen(BaseModel):
@@ -57,6 +76,19 @@ class Camera(Frozen):
         return self
 
 
+def same_pose(a: Camera, b: Camera) -> bool:
+    """Positions within SAME_POSITION_M and unit view directions within SAME_DIRECTION
+    (a look_at farther along the same ray is the same pose)."""
+    if max(abs(p - q) for p, q in zip(a.position, b.position)) > SAME_POSITION_M:
+        return False
+    views = []
+    for cam in (a, b):
+        d = [t - p for t, p in zip(cam.look_at, cam.position)]
+        norm = sum(v * v for v in d) ** 0.5
+        views.append([v / norm for v in d])
+    return sum((u - v) ** 2 for u, v in zip(*views)) ** 0.5 <= SAME_DIRECTION
+
+
 class Embodiment(Frozen):
     kind: Literal["arm", "mobile", "vehicle"]
     robot: str = Field("builtin_arm", pattern=r"^[a-z][a-z0-9_\-]{0,63}$")
@@ -86,6 +118,34 @@ class Task(Frozen):
     objects: tuple[str, ...] = Field(default=("package",), max_length=32,
                                      description="the objects to place; the first is the target every task moves")
     controller_noise: float = Field(0.0, ge=0, le=1)
+    waypoints: tuple[tuple[float, float], ...] = Field(
+        default=(), max_length=64,
+        description="drive only: the (x, y) points in metres the base drives through in order from its start at "
+                    "(0, 0), on straight legs; the last is the goal. Empty: straight down the aisle to x = 6 m")
+
+    @model_validator(mode="after")
+    def _waypoints_stay_in_the_aisle(self) -> "Task":
+        if not self.waypoints:
+            return self
+        if self.kind != "drive":
+            raise FieldError("waypoints", f"only a drive task follows waypoints, not {self.kind!r}")
+        (x0, x1), half = AISLE_X_M, AISLE_HALF_WIDTH_M
+        for i, (x, y) in enumerate(self.waypoints):
+            # The aisle is a box and the legs are straight from a start inside it: every leg
+            # stays inside when every waypoint does.
+            if not (x0 <= x <= x1 and abs(y) <= half):
+                raise FieldError(f"waypoints.{i}", f"({x:g}, {y:g}) leaves the aisle: the base's centre must stay "
+                                                   f"within x {x0:g} to {x1:g} m and |y| <= {half:g} m")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _leave_out_no_waypoints(self, handler):
+        # No waypoints dumps (and hashes) as a manifest from before the field: every existing
+        # manifest keeps its hash.
+        body = handler(self)
+        if isinstance(body, dict) and not self.waypoints:
+            body.pop("waypoints", None)
+        return body
 
     @field_validator("objects")
     @classmethod
@@ -187,9 +247,18 @@ class ScenarioManifest(Frozen):
 
     @model_validator(mode="after")
     def _unique_cameras(self) -> "ScenarioManifest":
-        names = [c.name for c in self.cameras]
-        if len(set(names)) != len(names):
-            raise ValueError(f"camera names repeat: {sorted(names)}")
+        # Each camera is one view: a second camera with the same name would overwrite the first's
+        # video, one at the same pose would record the same frames again.
+        for i, cam in enumerate(self.cameras):
+            for j, other in enumerate(self.cameras[:i]):
+                if cam.name == other.name:
+                    raise FieldError(f"cameras.{i}.name", f"{cam.name!r} is also the name of cameras.{j}; "
+                                                          f"camera names must differ")
+                if cam.mount == other.mount and same_pose(cam, other):
+                    raise FieldError(f"cameras.{i}.position",
+                                     f"{cam.name!r} has the pose of cameras.{j} ({other.name!r}): the same "
+                                     f"{cam.mount} mount, position and view direction (look_at); cameras at one "
+                                     f"pose record the same view")
         return self
 
     def stressor(self, kind: str):

@@ -10,7 +10,7 @@ from yaml.constructor import SafeConstructor
 from pydantic import BaseModel, ValidationError
 
 from schemas.hashing import canonical_json
-from schemas.manifest import ScenarioManifest
+from schemas.manifest import FieldError, ScenarioManifest
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, ManifestRow
 from tasks.guard.text import GuardError, check_fields
 
@@ -111,9 +111,26 @@ def validated(model: type[Model], data: dict, where: str, error: type[ValueError
         errors = exc.errors()
         # Pydantic also calls a list too short when its only items failed: that is no news.
         inner = {e["loc"][:k] for e in errors for k in range(len(e["loc"]))}
-        problems = [f"{'.'.join(str(p) for p in e['loc']) or '(top level)'}: {e['msg']}" for e in errors
+        problems = [f"{'.'.join(str(p) for p in _location(e)) or '(top level)'}: {_message(e)}" for e in errors
                     if not (e["type"] == "too_short" and e["loc"] in inner)]
         raise error(f"{where}: {'; '.join(problems)}") from None
+
+
+def _field_error(error: dict) -> FieldError | None:
+    cause = (error.get("ctx") or {}).get("error")
+    return cause if isinstance(cause, FieldError) else None
+
+
+def _location(error: dict) -> tuple:
+    # A FieldError names a field below the validator that raised it (cameras.1.name below the
+    # manifest): that field is the location.
+    cause = _field_error(error)
+    return tuple(error["loc"]) + tuple(cause.field.split(".")) if cause else tuple(error["loc"])
+
+
+def _message(error: dict) -> str:
+    cause = _field_error(error)
+    return cause.problem if cause else error["msg"]
 
 
 def parse_text(text: str, where: str = "<manifest>") -> ScenarioManifest:

@@ -220,9 +220,18 @@ class ArmController:
 
 
 class DriveController:
-    """Drives the base along the aisle to the goal, holding at a stop line while a forklift crosses."""
+    """Drives the base along the aisle to the goal, holding at a stop line while a forklift crosses.
+
+    With the task's waypoints it drives through them in order on straight legs, slowing to
+    CORNER_SPEED to turn at each (within WAYPOINT_REACH), and comes to rest at the last; with `repeat` it then drives the
+    path back to where it started, and again. The base carries its cameras without turning, so
+    the action ([vx, vy], world frame) is their velocity too: a camera-control action.
+    """
 
     VMAX, ACCEL = 1.5, 1.5  # m/s, m/s^2
+    WAYPOINT_REACH = 0.15  # m: close enough to a waypoint to head for the next one
+    CORNER_SPEED = 0.3  # m/s: speed through a waypoint on the way
+    GAIN = 1.0  # 1/s: wanted speed per metre to the waypoint; GAIN * VMAX stays within ACCEL
 
     def __init__(self, scene: Scene, seed: int, repeat: bool = False, noise: float | None = None):
         m = scene.model
@@ -236,9 +245,12 @@ class DriveController:
         self.fork = scene.manifest.stressor("forklift_crossing")
         self.fork_y: float | None = None
         self.v = np.zeros(2)
+        self.path = [np.array(w, float) for w in scene.manifest.task.waypoints]
+        self.leg = 0  # index of the waypoint being driven to
 
     def reset(self, data: mujoco.MjData) -> None:
         self.home_x = float(data.qpos[self.qadr[0]])
+        self.home = data.qpos[self.qadr].astype(float)
         self.fork_q = int(self.model.joint("forklift_slide").qposadr[0]) if self.fork else -1
         self.fork_y = float(data.qpos[self.fork_q]) if self.fork else None
 
@@ -254,12 +266,32 @@ class DriveController:
         gap = heading * (self.scene.lane_x - x)  # distance to the lane along the direction of travel
         return STOP_GAP - 0.25 < gap < 4.0 and front > -1.0 and rear < 1.0
 
+    def _follow(self, x: float, y: float) -> tuple[np.ndarray, float]:
+        """Wanted velocity and heading along x on the waypoint path."""
+        here = np.array([x, y])
+        last = len(self.path) - 1
+        while self.leg < last and np.linalg.norm(self.path[self.leg] - here) < self.WAYPOINT_REACH:
+            self.leg += 1
+        if self.repeat and self.leg == last and np.linalg.norm(self.path[last] - here) < 0.1:
+            # Back the way it came, to where it started: [.., w1, w0, home].
+            back = self.path[-2::-1] + [self.home]
+            self.home, self.path, self.leg = self.path[-1], back, 0
+        to = self.path[self.leg] - here
+        gap = float(np.linalg.norm(to))
+        # Slow to CORNER_SPEED into a waypoint on the way (so the turn stays tight), to rest at the last.
+        speed = min(self.VMAX, self.GAIN * gap + (self.CORNER_SPEED if self.leg < last else 0.0))
+        want = to / gap * speed if gap > 1e-9 else np.zeros(2)
+        return want, 1.0 if to[0] >= 0 else -1.0
+
     def step(self, data: mujoco.MjData) -> np.ndarray:
         x, y = (float(v) for v in data.qpos[self.qadr])
-        if self.repeat and abs(self.goal_x - x) < 0.1:
-            self.goal_x, self.home_x = self.home_x, self.goal_x
-        want = np.array([np.clip(1.5 * (self.goal_x - x), -self.VMAX, self.VMAX), -2.0 * y])
-        heading = 1.0 if self.goal_x >= x else -1.0
+        if self.path:
+            want, heading = self._follow(x, y)
+        else:
+            if self.repeat and abs(self.goal_x - x) < 0.1:
+                self.goal_x, self.home_x = self.home_x, self.goal_x
+            want = np.array([np.clip(1.5 * (self.goal_x - x), -self.VMAX, self.VMAX), -2.0 * y])
+            heading = 1.0 if self.goal_x >= x else -1.0
         if self._crossing_soon(data, x, heading):
             room = heading * (self.scene.lane_x - x) - STOP_GAP  # how far to the stop line
             want[0] = heading * min(heading * want[0], max(0.0, 2.0 * room))

@@ -4,7 +4,8 @@ Layout (metres, world z up, robot base at the origin facing +x):
 - bin_pick: a bin centred at (0.45, 0) on the floor, packages inside it.
 - push: a conveyor-like table centred at (0.45, 0), top at z=0.10; the package starts near
   y=-0.14 and the green goal marker lies near y=+0.13.
-- drive: an aisle along +x between two runs of racks; the goal is 6 m ahead.
+- drive: an aisle along +x between two runs of racks; the goal is 6 m ahead, or the last of the
+  task's waypoints (which stay inside the aisle: schemas.manifest.AISLE_X_M, AISLE_HALF_WIDTH_M).
 A forklift lane runs along y at x = lane_m (distance from the robot base). Every random
 choice draws from a stream named after its purpose, so adding one stressor never shifts
 the draws of another.
@@ -119,6 +120,23 @@ def _add_cameras(spec: mujoco.MjSpec, cameras: tuple[Camera, ...], where: str) -
                                  f"which this embodiment does not have")
         parent.add_camera(name=cam.name, pos=list(cam.position), quat=list(look_quat(cam.position, cam.look_at)),
                           fovy=cam.fovy_deg, resolution=list(cam.resolution))
+
+
+def drive_path(manifest: ScenarioManifest) -> np.ndarray:
+    """(K, 2) the points a drive task's base drives through from its start at the origin, the
+    last its goal: the manifest's waypoints, or straight down the aisle to AISLE_GOAL_X."""
+    if manifest.task.waypoints:
+        return np.array(manifest.task.waypoints, float)
+    return np.array([[AISLE_GOAL_X, 0.0]])
+
+
+def _along(points: np.ndarray, spacing: float) -> list[np.ndarray]:
+    """Points every `spacing` metres along the polyline through `points` (both ends included)."""
+    out = [points[0]]
+    for a, b in zip(points[:-1], points[1:]):
+        n = max(1, int(math.ceil(float(np.linalg.norm(b - a)) / spacing)))
+        out += [a + (b - a) * k / n for k in range(1, n + 1)]
+    return out
 
 
 def _box(body, name, pos, half, material=None, rgba=None):
@@ -241,15 +259,21 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
         gap = (lane.lane_m - 1.6, lane.lane_m + 1.6) if lane else (99.0, 99.0)
         runs = [(x0, x1) for x0, x1 in ((-2.0, min(gap[0], 8.0)), (max(gap[1], -2.0), 8.0)) if x1 - x0 > 0.5]
         _add_racks(spec, stressors.add_material(spec, "rack_mat", (0.85, 0.5, 0.1), arng, look), runs, 1.4)
-        goal = np.array([AISLE_GOAL_X, 0.0, 0.0])
-        spec.worldbody.add_geom(name="goal_marker", type=G.mjGEOM_BOX, pos=[AISLE_GOAL_X, 0, 0.001],
-                                size=[0.05, 0.9, 0.001], rgba=[0.1, 0.8, 0.2, 1], contype=0, conaffinity=0)
+        path = drive_path(manifest)
+        goal = np.array([*path[-1], 0.0])
+        # Across the aisle at the end of the default straight drive; a square at a waypoint goal.
+        mark = [0.05, 0.9, 0.001] if not manifest.task.waypoints else [0.15, 0.15, 0.001]
+        spec.worldbody.add_geom(name="goal_marker", type=G.mjGEOM_BOX, pos=[*goal[:2], 0.001],
+                                size=mark, rgba=[0.1, 0.8, 0.2, 1], contype=0, conaffinity=0)
         shelf = 0.775  # top of the middle shelf
         start, yaw, rest_z, rim_z = np.array([1.0, 1.4]), 0.0, shelf + PACKAGE_HALF[2] + 0.001, 0.0
         extra_xy = [np.array([x, -1.4]) for x in (0.0, 5.5, 7.0)]
         extra_z = shelf + PACKAGE_HALF[2]
         region, dz = (0.5, 5.5, -0.95, 0.95), 0.0
-        keep_out = [(x, 0.0, 0.45) for x in np.arange(-0.5, AISLE_GOAL_X + 0.6, 0.5)]
+        if manifest.task.waypoints:  # distractors stay off the commanded path
+            keep_out = [(*xy, 0.45) for xy in _along(np.vstack([[0.0, 0.0], path]), 0.5)]
+        else:
+            keep_out = [(x, 0.0, 0.45) for x in np.arange(-0.5, AISLE_GOAL_X + 0.6, 0.5)]
     target_pos = np.array([*start, rest_z])
     objects = [_add_package(spec, names[0], target_pos, yaw, PACKAGE_HALF, package_mat)]
     for i, name in enumerate(names[1:]):
