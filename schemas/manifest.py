@@ -93,9 +93,16 @@ class Embodiment(Frozen):
     kind: Literal["arm", "mobile", "vehicle"]
     robot: str = Field("builtin_arm", pattern=r"^[a-z][a-z0-9_\-]{0,63}$")
     mjcf: str | None = Field(None, description="MJCF file relative to the robots root")
-    action_space: Literal["ee_delta", "joint_position", "velocity"] = "ee_delta"
+    # twist (a base only): [vx, vy, wz], the base also turns, and its cameras with it.
+    action_space: Literal["ee_delta", "joint_position", "velocity", "twist"] = "ee_delta"
 
     _mjcf = field_validator("mjcf")(classmethod(lambda cls, v: check_relative_path(v)))
+
+    @model_validator(mode="after")
+    def _twist_turns_a_base(self) -> "Embodiment":
+        if self.action_space == "twist" and self.kind == "arm":
+            raise FieldError("action_space", "twist ([vx, vy, wz]) drives a mobile base or a vehicle, not an arm")
+        return self
 
 
 # Bodies the scene adds itself (tasks/sim: the built-in arm, the mobile base, an MJCF arm
@@ -122,10 +129,16 @@ class Task(Frozen):
         default=(), max_length=64,
         description="drive only: the (x, y) points in metres the base drives through in order from its start at "
                     "(0, 0), on straight legs; the last is the goal. Empty: straight down the aisle to x = 6 m")
+    waypoint_jitter_m: float = Field(
+        0.0, ge=0, le=0.5,
+        description="each episode moves every waypoint by up to this much in x and y (uniform, from its seed; "
+                    "kept inside the aisle), so episodes command different trajectories")
 
     @model_validator(mode="after")
     def _waypoints_stay_in_the_aisle(self) -> "Task":
         if not self.waypoints:
+            if self.waypoint_jitter_m:
+                raise FieldError("waypoint_jitter_m", "jitters the task's waypoints, and there are none")
             return self
         if self.kind != "drive":
             raise FieldError("waypoints", f"only a drive task follows waypoints, not {self.kind!r}")
@@ -145,6 +158,8 @@ class Task(Frozen):
         body = handler(self)
         if isinstance(body, dict) and not self.waypoints:
             body.pop("waypoints", None)
+        if isinstance(body, dict) and not self.waypoint_jitter_m:
+            body.pop("waypoint_jitter_m", None)
         return body
 
     @field_validator("objects")

@@ -145,7 +145,7 @@ def closed_loop_verdict(world_model: str, variant: ScenarioManifest, camera: str
 def action_width(manifest: ScenarioManifest) -> int:
     """Values per control step in the manifest's action layout (`tasks.sim.control`)."""
     if manifest.embodiment.kind != "arm":
-        return 2
+        return 3 if manifest.embodiment.action_space == "twist" else 2
     return 7 if manifest.embodiment.action_space == "joint_position" else 5
 
 

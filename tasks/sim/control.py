@@ -224,14 +224,20 @@ class DriveController:
 
     With the task's waypoints it drives through them in order on straight legs, slowing to
     CORNER_SPEED to turn at each (within WAYPOINT_REACH), and comes to rest at the last; with `repeat` it then drives the
-    path back to where it started, and again. The base carries its cameras without turning, so
-    the action ([vx, vy], world frame) is their velocity too: a camera-control action.
+    path back to where it started, and again. The action is [vx, vy] (world frame), the base
+    carrying its cameras without turning, so it is their velocity too: a camera-control action.
+    A base that turns (the twist action space) also turns to face where it drives, within
+    MAX_TURN of the aisle's direction, and the action is [vx, vy, wz] (rad/s about world z):
+    the cameras' translation and rotation rates.
     """
 
     VMAX, ACCEL = 1.5, 1.5  # m/s, m/s^2
     WAYPOINT_REACH = 0.15  # m: close enough to a waypoint to head for the next one
     CORNER_SPEED = 0.3  # m/s: speed through a waypoint on the way
     GAIN = 1.0  # 1/s: wanted speed per metre to the waypoint; GAIN * VMAX stays within ACCEL
+    WMAX, ALPHA, YAW_GAIN = 0.5, 1.5, 2.0  # rad/s, rad/s^2, 1/s: a turning base's yaw rate servo
+    MAX_TURN = 0.6  # rad: the most a turning base faces away from the aisle's direction
+    FACE_SPEED = 0.2  # m/s: slower than this, a turning base keeps the heading it has
 
     def __init__(self, scene: Scene, seed: int, repeat: bool = False, noise: float | None = None):
         m = scene.model
@@ -245,8 +251,12 @@ class DriveController:
         self.fork = scene.manifest.stressor("forklift_crossing")
         self.fork_y: float | None = None
         self.v = np.zeros(2)
-        self.path = [np.array(w, float) for w in scene.manifest.task.waypoints]
+        self.path = [] if scene.path is None else [np.array(w, float) for w in scene.path]
         self.leg = 0  # index of the waypoint being driven to
+        base = scene.base
+        self.yaw_q = int(m.jnt_qposadr[m.joint(base.yaw_joint).id]) if base.yaw_joint else -1
+        self.yaw_act = m.actuator(base.yaw_actuator).id if base.yaw_actuator else -1
+        self.w, self.face = 0.0, 0.0
 
     def reset(self, data: mujoco.MjData) -> None:
         self.home_x = float(data.qpos[self.qadr[0]])
@@ -298,10 +308,24 @@ class DriveController:
         self.v = self.v + np.clip(want - self.v, -self.ACCEL * self.dt, self.ACCEL * self.dt)
         action = self.v + (self.rng.normal(0.0, self.noise * 0.3, 2) if self.noise else 0.0)
         data.ctrl[self.acts] = action
-        return np.asarray(action, float)
+        if self.yaw_q < 0:
+            return np.asarray(action, float)
+        return np.append(action, self._turn(data, heading))
+
+    def _turn(self, data: mujoco.MjData, heading: float) -> float:
+        """A turning base's yaw rate: towards facing along its velocity (backwards along the
+        aisle it faces +x still), rate- and acceleration-limited; written to its servo."""
+        if np.linalg.norm(self.v) >= self.FACE_SPEED:
+            self.face = float(np.clip(math.atan2(heading * self.v[1], heading * self.v[0]),
+                                      -self.MAX_TURN, self.MAX_TURN))
+        want = float(np.clip(self.YAW_GAIN * (self.face - data.qpos[self.yaw_q]), -self.WMAX, self.WMAX))
+        self.w += float(np.clip(want - self.w, -self.ALPHA * self.dt, self.ALPHA * self.dt))
+        w = self.w + (float(self.rng.normal(0.0, self.noise * 0.3)) if self.noise else 0.0)
+        data.ctrl[self.yaw_act] = w
+        return w
 
     def action_size(self) -> int:
-        return 2
+        return 2 if self.yaw_q < 0 else 3
 
 
 def make_controller(scene: Scene, seed: int, repeat: bool = False,

@@ -166,16 +166,22 @@ def add_mjcf_arm(spec: mujoco.MjSpec, arm_file: Path, gripper_file: Path | None)
 
 @dataclass(frozen=True)
 class BaseSpec:
-    joints: tuple[str, str]
+    joints: tuple[str, str]  # the planar slides (world x, y): where the base is
     actuators: tuple[str, str]
     link_bodies: tuple[str, ...]
+    yaw_joint: str | None = None  # a base that turns (a twist action space)
+    yaw_actuator: str | None = None
 
 
-def add_mobile_base(spec: mujoco.MjSpec, rgba=(0.2, 0.35, 0.7, 1.0)) -> BaseSpec:
-    """A box chassis on x/y slide joints with velocity servos (a holonomic cart, no yaw)."""
+def add_mobile_base(spec: mujoco.MjSpec, rgba=(0.2, 0.35, 0.7, 1.0), turn: bool = False) -> BaseSpec:
+    """A box chassis on x/y slide joints with velocity servos (a holonomic cart); with `turn`
+    also a hinge about z after the slides, so the slides stay along world x and y and the chassis
+    (with the cameras mounted on it) turns about its centre."""
     base = spec.worldbody.add_body(name="base", pos=[0, 0, 0.0])
     for axis, name in (((1, 0, 0), "base_x"), ((0, 1, 0), "base_y")):
         base.add_joint(name=name, type=SLIDE, axis=list(axis), damping=5.0)
+    if turn:
+        base.add_joint(name="base_yaw", type=mujoco.mjtJoint.mjJNT_HINGE, axis=[0, 0, 1], damping=2.0)
     base.add_geom(name="chassis", type=G.mjGEOM_BOX, pos=[0, 0, 0.2], size=[0.35, 0.25, 0.12], rgba=rgba, mass=40)
     base.add_geom(type=G.mjGEOM_BOX, pos=[0, 0, 0.42], size=[0.05, 0.18, 0.1], rgba=(0.2, 0.2, 0.2, 1), mass=1)
     for x in (-0.25, 0.25):
@@ -183,13 +189,14 @@ def add_mobile_base(spec: mujoco.MjSpec, rgba=(0.2, 0.35, 0.7, 1.0)) -> BaseSpec
             base.add_geom(type=G.mjGEOM_CYLINDER, pos=[x, y, 0.08], quat=[0.7071068, 0.7071068, 0, 0],
                           size=[0.08, 0.03, 0], rgba=(0.05, 0.05, 0.05, 1), contype=0, conaffinity=0, mass=0.5)
     acts = []
-    for j in ("base_x", "base_y"):
+    for j in ("base_x", "base_y", *(("base_yaw",) if turn else ())):
         act = spec.add_actuator(name=f"act_{j}", target=j, trntype=mujoco.mjtTrn.mjTRN_JOINT)
-        act.set_to_velocity(kv=400.0)
+        act.set_to_velocity(kv=400.0 if j != "base_yaw" else 100.0)
         act.forcerange = [-600, 600]
         act.forcelimited = mujoco.mjtLimited.mjLIMITED_TRUE
         acts.append(act.name)
-    return BaseSpec(joints=("base_x", "base_y"), actuators=tuple(acts), link_bodies=("base",))
+    return BaseSpec(joints=("base_x", "base_y"), actuators=(acts[0], acts[1]), link_bodies=("base",),
+                    yaw_joint="base_yaw" if turn else None, yaw_actuator=acts[2] if turn else None)
 
 
 def fit_tcp_to_pads(model: mujoco.MjModel) -> float:

@@ -23,7 +23,7 @@ import numpy as np
 import mujoco
 from pydantic import Field
 
-from schemas.manifest import Camera, Frozen, ScenarioManifest, object_body_name
+from schemas.manifest import AISLE_HALF_WIDTH_M, AISLE_X_M, Camera, Frozen, ScenarioManifest, object_body_name
 from schemas.settings import Settings
 from tasks.sim import mjcf, robots, stressors
 from tasks.sim.kinematics import yaw_quat
@@ -90,6 +90,7 @@ class Scene:
     initial_ctrl: np.ndarray
     stressor_values: dict = field(default_factory=dict)
     grip_axis: float = math.pi / 2  # direction the fingers close along, as an angle in the ee x-y plane
+    path: np.ndarray | None = None  # a drive task's waypoints as this seed drives them (drive_path); None: straight
 
 
 def rng_for(seed: int, purpose: str) -> np.random.Generator:
@@ -122,12 +123,21 @@ def _add_cameras(spec: mujoco.MjSpec, cameras: tuple[Camera, ...], where: str) -
                           fovy=cam.fovy_deg, resolution=list(cam.resolution))
 
 
-def drive_path(manifest: ScenarioManifest) -> np.ndarray:
+def drive_path(manifest: ScenarioManifest, seed: int | None = None) -> np.ndarray:
     """(K, 2) the points a drive task's base drives through from its start at the origin, the
-    last its goal: the manifest's waypoints, or straight down the aisle to AISLE_GOAL_X."""
-    if manifest.task.waypoints:
-        return np.array(manifest.task.waypoints, float)
-    return np.array([[AISLE_GOAL_X, 0.0]])
+    last its goal: the manifest's waypoints, or straight down the aisle to AISLE_GOAL_X. With
+    `task.waypoint_jitter_m` and a seed, each waypoint moved by up to that much in x and y
+    (uniform, from the seed's own stream, so nothing else the seed draws changes), kept in
+    the aisle."""
+    if not manifest.task.waypoints:
+        return np.array([[AISLE_GOAL_X, 0.0]])
+    path = np.array(manifest.task.waypoints, float)
+    jitter = manifest.task.waypoint_jitter_m
+    if jitter and seed is not None:
+        path = path + rng_for(seed, "waypoints").uniform(-jitter, jitter, path.shape)
+        path[:, 0] = path[:, 0].clip(*AISLE_X_M)
+        path[:, 1] = path[:, 1].clip(-AISLE_HALF_WIDTH_M, AISLE_HALF_WIDTH_M)
+    return path
 
 
 def _along(points: np.ndarray, spacing: float) -> list[np.ndarray]:
@@ -223,7 +233,7 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
         else:
             arm = robots.add_builtin_arm(spec)
     else:
-        base = robots.add_mobile_base(spec)
+        base = robots.add_mobile_base(spec, turn=manifest.embodiment.action_space == "twist")
 
     keep_out: list[tuple[float, float, float]] = [(0.0, 0.0, 0.2)]
     if task == "bin_pick":
@@ -259,7 +269,7 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
         gap = (lane.lane_m - 1.6, lane.lane_m + 1.6) if lane else (99.0, 99.0)
         runs = [(x0, x1) for x0, x1 in ((-2.0, min(gap[0], 8.0)), (max(gap[1], -2.0), 8.0)) if x1 - x0 > 0.5]
         _add_racks(spec, stressors.add_material(spec, "rack_mat", (0.85, 0.5, 0.1), arng, look), runs, 1.4)
-        path = drive_path(manifest)
+        path = drive_path(manifest, seed)
         goal = np.array([*path[-1], 0.0])
         # Across the aisle at the end of the default straight drive; a square at a waypoint goal.
         mark = [0.05, 0.9, 0.001] if not manifest.task.waypoints else [0.15, 0.15, 0.001]
@@ -301,7 +311,7 @@ def build_scene(manifest: ScenarioManifest, seed: int, config: SimConfig = SimCo
     return Scene(model=model, manifest=manifest, seed=seed, config=config, arm=arm, base=base,
                  objects=tuple(objects), target_half=PACKAGE_HALF.copy(), goal=goal, rim_z=rim_z,
                  lane_x=fork.lane_m if fork else None, initial_qpos=qpos, initial_ctrl=ctrl, stressor_values=values,
-                 grip_axis=grip_axis)
+                 grip_axis=grip_axis, path=path if task == "drive" and manifest.task.waypoints else None)
 
 
 def _scale_lights(spec: mujoco.MjSpec, scale: float) -> None:

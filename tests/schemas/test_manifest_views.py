@@ -124,3 +124,37 @@ def test_waypoints_belong_to_a_drive():
 def test_field_error_reads_as_one_line_anywhere():
     error = FieldError("cameras.1.name", "problem")
     assert str(error) == "cameras.1.name: problem" and isinstance(error, ValueError)
+
+
+def test_the_camera_control_rig_turns_and_jitters_its_path():
+    control = ScenarioManifest.model_validate(CONTROL)
+    assert control.embodiment.action_space == "twist" and control.task.waypoint_jitter_m > 0
+    for name in PINNED:
+        assert "waypoint_jitter_m" not in load(MANIFESTS / name).model_dump(mode="json")["task"]
+    wider = copy.deepcopy(CONTROL)
+    wider["task"]["waypoint_jitter_m"] = 0.2
+    assert parse_text(_text(wider)).sha256 != parse_text(_text(CONTROL)).sha256
+
+
+def test_a_twist_belongs_to_a_base():
+    body = load(MANIFESTS / "conveyor_push.yaml").model_dump(mode="json")
+    body["embodiment"]["action_space"] = "twist"
+    assert _refusal(body).startswith("bad.yaml: embodiment.action_space: twist ([vx, vy, wz]) drives a mobile base"), \
+        _refusal(body)
+
+
+@pytest.mark.parametrize("jitter, problem", [
+    (-0.1, "greater than or equal to 0"),
+    (0.6, "less than or equal to 0.5"),
+])
+def test_a_bad_waypoint_jitter_is_one_line_naming_the_field(jitter, problem):
+    body = copy.deepcopy(CONTROL)
+    body["task"]["waypoint_jitter_m"] = jitter
+    line = _refusal(body)
+    assert "task.waypoint_jitter_m" in line and problem in line, line
+
+
+def test_waypoint_jitter_needs_waypoints():
+    body = load(MANIFESTS / "mobile_rig_aisle.yaml").model_dump(mode="json")
+    body["task"]["waypoint_jitter_m"] = 0.1
+    assert _refusal(body).startswith("bad.yaml: task.waypoint_jitter_m: jitters the task's waypoints, and there are none")
