@@ -6,7 +6,7 @@ from pathlib import Path
 
 from flows import cli_checks as need
 from flows.cli_shell import app, command, evaluate_app, fail, out, refuse, writing
-from flows.params_world import PhysicsParams, TokenizeParams, TrainParams
+from flows.params_world import CameraParams, PhysicsParams, TokenizeParams, TrainParams
 from schemas.settings import Settings
 
 
@@ -91,3 +91,26 @@ def evaluate_physics_cmd(params: PhysicsParams) -> None:
     checks = ", ".join(f"{k} {'passed' if v else 'failed'}" for k, v in result["checks"].items())
     out.print(f"evaluation {result['evaluation_id']} ({result['windows']} windows, {result['moving']} with the "
               f"package moving): {checks}; table and plots under {result['folder']}", highlight=False)
+
+
+@command(evaluate_app, CameraParams, "camera")
+def evaluate_camera_cmd(params: CameraParams) -> None:
+    """Camera control: a world model of a rig whose action is its cameras' motion, on held-out
+    seeds; the camera motion re-estimated from its frames against the commanded motion, beside
+    copy-last-frame and the tokenizer's reconstruction (Prefect flow `evaluate-camera`)."""
+    need.simulable(params.manifest)
+    folder = need.world_model(params.world_model)
+    from tasks.world.family import TOKENIZER_VARIANT, family_of, read_world_config
+
+    variant = TOKENIZER_VARIANT[family_of(read_world_config(folder))]
+    tokenizer = need.tokenizer(params.tokenizer, variant) if params.tokenizer else None
+    from flows.camera_control import evaluate_camera
+
+    writing()
+    try:
+        result = evaluate_camera(**params.model_copy(update={"world_model": folder, "tokenizer": tokenizer}).model_dump())
+    except (FileNotFoundError, ValueError) as exc:
+        refuse(exc)
+    verdict = "passed" if result["checks"]["beats_copy_last"] else "failed"
+    out.print(f"evaluation {result['evaluation_id']} ({result['windows']} windows, camera {result['camera']}): "
+              f"rotation error below copy-last's {verdict}; table under {result['folder']}", highlight=False)

@@ -145,7 +145,9 @@ class TrainParams(ComputeParams):
                               f"{width} action values a step and preset {self.preset_name} takes {room} values in all")
 
 
-class PhysicsParams(FlowParams):
+class HeldoutParams(FlowParams):
+    """What a world model's evaluation on held-out seeds of a manifest takes (physics, camera)."""
+
     manifest: str = Field(description="scenario manifest YAML")
     world_model: str | None = Field(None, description="post-trained world-model checkpoint folder or id, "
                                     "autoregressive or diffusion (default: the newest post-trained one in lineage)")
@@ -157,10 +159,19 @@ class PhysicsParams(FlowParams):
     horizon: Horizon = Field(4, description="latent frames predicted per window")
     context: int | None = None
     stride: int = 2
-    move_threshold_cm: float = 2.0
     shuffle_seed: int = 0
     sampler_steps: SamplerSteps = Field(8, description="a diffusion world model's Euler sampling steps per window "
                                                        "(an autoregressive one decodes greedily)")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest",)
+    cli_hidden = ("context", "stride", "shuffle_seed")
+
+
+class PhysicsParams(HeldoutParams):
+    move_threshold_cm: float = 2.0
     cli_hidden = ("context", "stride", "move_threshold_cm", "shuffle_seed")
+
+
+class CameraParams(HeldoutParams):
+    manifest: str = Field(description="manifest YAML of a rig whose cameras ride on the base (its action their motion)")
+    camera: str | None = Field(None, description="camera riding on the base (default: the first)")

@@ -40,7 +40,7 @@ render_heldout = task(evaluation.render_heldout, name="render-heldout", retries=
 predict_heldout = task(evaluation.predict_heldout, name="predict-heldout", cache_policy=NO_CACHE)
 
 
-def _artifact_id(run: RunContext, path: Path, kind: str, attrs: dict) -> str:
+def checkpoint_artifact_id(run: RunContext, path: Path, kind: str, attrs: dict) -> str:
     """The lineage id of a checkpoint file, checked against the sha256 lineage recorded for it
     (TamperedArtifact); one lineage has never seen is recorded now as an external input (a
     checkpoint brought from elsewhere may be evaluated; its row says it has no lineage here)."""
@@ -96,8 +96,8 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
         size, window = int(config["size"]), int(model_section(config)["max_frames"])
         every = int(model_section(config)["temporal_compression"])  # report every latent step
         context = context or max(1, window - horizon)
-        wm_id = _artifact_id(run, wm_folder / checkpoints.WEIGHTS_FILE, "checkpoint", {"model": "world_model"})
-        tok_id = _artifact_id(run, tok_folder / tokens.WEIGHTS_FILE, "checkpoint", {"model": "tokenizer"})
+        wm_id = checkpoint_artifact_id(run, wm_folder / checkpoints.WEIGHTS_FILE, "checkpoint", {"model": "world_model"})
+        tok_id = checkpoint_artifact_id(run, tok_folder / tokens.WEIGHTS_FILE, "checkpoint", {"model": "tokenizer"})
         meaning = {**params, "world_model": wm_id, "tokenizer": tok_id, "context": context}  # not the paths
         key = stable_id(STAGE, wm_id, tok_id, run.manifest_hash, content_hash(meaning))
         evaluation_id = stable_id("evaluation", key)

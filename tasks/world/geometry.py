@@ -39,7 +39,8 @@ class PinholeCamera:
     def from_fovy(cls, width: int, height: int, fovy_deg: float, position, rotation) -> "PinholeCamera":
         f = height / 2 / math.tan(math.radians(fovy_deg) / 2)
         return cls(int(width), int(height), f, width / 2 - 0.5, height / 2 - 0.5,
-                   np.asarray(position, float), np.asarray(rotation, float).reshape(3, 3))
+                   np.array(position, float), np.array(rotation, float).reshape(3, 3))  # copies: MuJoCo's
+        # data.cam(name).xpos / xmat are views that the next step overwrites
 
     @classmethod
     def from_manifest(cls, camera) -> "PinholeCamera":

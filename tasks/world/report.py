@@ -112,7 +112,7 @@ def evaluation_lineage(root: Path, evaluation_id: str, files: dict[str, Path], s
                          edges=[EdgeRecord(parent_id=wm_id, child_id=evaluation_id, relation="evaluated"),
                                 EdgeRecord(parent_id=tok_id, child_id=evaluation_id, relation="decoded_by"),
                                 EdgeRecord(parent_id=manifest_hash, child_id=evaluation_id, relation="evaluated_on")])
-    for name in ("error_vs_horizon", "strip"):
+    for name in [n for n in ("error_vs_horizon", "strip") if n in files]:
         plot_id = stable_id("report", evaluation_id, name)
         batch.artifacts.append(record("report", plot_id, files[name], {"plot": name}))
         batch.edges.append(EdgeRecord(parent_id=evaluation_id, child_id=plot_id, relation="plotted"))
