@@ -12,6 +12,7 @@ actions and copy-last-frame -> table, check, lineage.
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 from prefect import flow, task
@@ -109,8 +110,11 @@ def evaluate_camera(manifest: str, world_model: str | None = None, tokenizer: st
         truths = [(seed, truth) for seed, (truth, _) in zip(seeds, rendered)]
         poses = {f"seed{seed}": cams for seed, (_, cams) in zip(seeds, rendered)}
         text = episode_text(scenario.task.instruction, [s.kind for s in scenario.stressors])
+        started = time.perf_counter()
         windows, frames = predict(wm_folder, tok_folder, truths, poses[f"seed{seeds[0]}"][0], size, text, context,
                                   horizon, stride, shuffle_seed, sampler_steps)
+        # Per generated frame, the encoding and decoding included: true and shuffled actions, every window.
+        per_frame = (time.perf_counter() - started) / max(1, 2 * len(windows) * every * horizon)
         if not windows:
             raise ValueError(f"episodes of {scenario.horizon_s} s are too short for {context} + {horizon} "
                              "latent frames")
@@ -119,7 +123,7 @@ def evaluate_camera(manifest: str, world_model: str | None = None, tokenizer: st
         table = camera_control.motion_table(rows)
         check = camera_control.check_beats_copy_last(table)
         counts = {"episodes": len(seeds), "seeds": f"{seeds[0]}..{seeds[-1]}", "windows": len(windows),
-                  "camera": name}
+                  "camera": name, "rollout_s_per_frame": round(per_frame, 4)}
         body = camera_control.report_body(table, check, counts)
         files["result"].parent.mkdir(parents=True, exist_ok=True)
         files["report"].write_text(f"# camera-control evaluation {evaluation_id}\n\n{body}")

@@ -97,7 +97,8 @@ def report_body(table: list[dict], check: dict, counts: dict) -> str:
                      f"{fmt(r['direction_median_deg'])} | {fmt(r.get('true_rotation_mean_deg'))} | {r['failures']} |")
     verdict = "passed" if check["passed"] else "failed"
     return (f"{counts['windows']} windows of {counts['episodes']} held-out episodes (seeds {counts['seeds']}), "
-            f"camera `{counts['camera']}`.\n\n" + "\n".join(lines) +
+            f"camera `{counts['camera']}`; {counts['rollout_s_per_frame']:.4f} s of rollout per generated frame "
+            "(encoding and decoding included).\n\n" + "\n".join(lines) +
             f"\n\nRotation error below copy-last-frame's at every horizon of {check['min_horizon']} frames or more: "
             f"**{verdict}** (model, floor: {check['model_vs_floor_deg']}).\n")
 
