@@ -15,7 +15,6 @@ the first axis; ``sample_windows`` moves channels ahead of time as the model tak
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +32,7 @@ from tasks import checkpoint_files
 from tasks.device import Runtime, autocast, prepare
 from tasks.tokenize.data import square, usable_frames
 from tasks.tokenize.train import to_tensor
-from tasks.world.train import lr_at, pick_windows, window_length
+from tasks.world.train import optimise, pick_windows, window_length
 
 CONFIG_KEY = "diffusion_world_model"
 
@@ -135,13 +134,6 @@ def flow_matching_loss(velocity: torch.Tensor, target: torch.Tensor, context: to
     return (F.mse_loss(velocity, target, reduction="none") * future).sum() / future.sum().clamp(min=1)
 
 
-def _optimizer(model: DiffusionWorldModel, config: DiffusionTrainConfig) -> torch.optim.Optimizer:
-    params = [p for p in model.parameters() if p.requires_grad]
-    return torch.optim.AdamW([{"params": [p for p in params if p.dim() >= 2], "weight_decay": config.weight_decay},
-                              {"params": [p for p in params if p.dim() < 2], "weight_decay": 0.0}],
-                             lr=config.lr, betas=(0.9, 0.95))
-
-
 def train_diffusion(model: DiffusionWorldModel, sequences: Sequence[LatentSequence], config: DiffusionTrainConfig,
                     on_log: Callable[[dict], None] | None = None, runtime: Runtime | None = None) -> list[dict]:
     """Train in place; one record per ``log_every`` steps (and the last): step, seconds, loss (mean
@@ -157,17 +149,8 @@ def train_diffusion(model: DiffusionWorldModel, sequences: Sequence[LatentSequen
     if frames < 2:
         raise ValueError(f"no window of 2 latent frames fits temporal_patch {model.config.temporal_patch}")
     with_actions = model.config.action_conditioned
-    opt = _optimizer(model, config)
-    history: list[dict] = []
-    trained, pending = 0.0, []
-    model.train()
-    for step in range(config.steps):
-        if config.seconds and trained >= config.seconds:
-            break
-        started = time.perf_counter()
-        progress = max(step / config.steps, trained / config.seconds if config.seconds else 0.0)
-        for group in opt.param_groups:
-            group["lr"] = lr_at(config, step, progress)
+
+    def batch_loss() -> tuple[torch.Tensor, dict[str, float]]:
         latents, texts, actions = sample_windows(sequences, frames, config.batch_size, gen, with_actions,
                                                  config.text_dropout)
         latents = latents.to(device, non_blocking=True)
@@ -175,25 +158,9 @@ def train_diffusion(model: DiffusionWorldModel, sequences: Sequence[LatentSequen
         inputs, s, flags, target = noised_window(latents, gen, config.time_sampling, config.min_context)
         with autocast(runtime, device):
             velocity = call(inputs, s, flags, text_ids(texts, model.config).to(device), actions)
-        loss = flow_matching_loss(velocity.float(), target, flags)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
-        opt.step()
-        pending.append(loss.item())
-        trained += time.perf_counter() - started
-        last = step + 1 == config.steps or bool(config.seconds and trained >= config.seconds)
-        if (step + 1) % config.log_every == 0 or last:
-            record = {"step": step + 1, "seconds": round(trained, 2), "loss": float(np.mean(pending)),
-                      "lr": opt.param_groups[0]["lr"]}
-            pending = []
-            history.append(record)
-            if on_log:
-                model.eval()
-                on_log(record)
-                model.train()
-    model.eval()
-    return history
+        return flow_matching_loss(velocity.float(), target, flags), {}
+
+    return optimise(model, config, batch_loss, on_log)
 
 
 def posttrain(pretrained: DiffusionWorldModel, episodes: Sequence[LatentSequence], config: DiffusionTrainConfig,

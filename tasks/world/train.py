@@ -157,13 +157,54 @@ def lr_at(config: WorldTrainConfig, step: int, progress: float) -> float:
     return floor + (config.lr - floor) * 0.5 * (1 + math.cos(math.pi * min(progress, 1.0)))
 
 
-def _optimizer(model: WorldModel, config: WorldTrainConfig) -> torch.optim.Optimizer:
-    # Weight decay on matrices only, not on biases, norms or the learned position vectors (nanoGPT).
+def optimizer(model: torch.nn.Module, config) -> torch.optim.Optimizer:
+    """AdamW on the trainable parameters, weight decay on matrices only, not on biases, norms or
+    the learned position vectors (nanoGPT)."""
     params = [p for p in model.parameters() if p.requires_grad]
     decay = [p for p in params if p.dim() >= 2]
     rest = [p for p in params if p.dim() < 2]
     return torch.optim.AdamW([{"params": decay, "weight_decay": config.weight_decay},
                               {"params": rest, "weight_decay": 0.0}], lr=config.lr, betas=(0.9, 0.95))
+
+
+def optimise(model: torch.nn.Module, config, batch_loss: Callable[[], tuple[torch.Tensor, dict[str, float]]],
+             on_log: Callable[[dict], None] | None = None) -> list[dict]:
+    """The training loop both world-model families share, in place: ``config.steps`` steps (or
+    ``config.seconds`` of training), the learning rate of `lr_at` set each step, one
+    ``batch_loss()`` (a window batch's loss and the step's other figures), gradients clipped to
+    norm 1, and one record per ``log_every`` steps and the last: step, seconds, loss, the other
+    figures (means over those steps) and lr; ``on_log`` sees each record with the model in eval mode."""
+    opt = optimizer(model, config)
+    history: list[dict] = []
+    trained, pending = 0.0, []
+    model.train()
+    for step in range(config.steps):
+        if config.seconds and trained >= config.seconds:
+            break
+        started = time.perf_counter()
+        progress = max(step / config.steps, trained / config.seconds if config.seconds else 0.0)
+        for group in opt.param_groups:
+            group["lr"] = lr_at(config, step, progress)
+        loss, figures = batch_loss()
+        opt.zero_grad(set_to_none=True)
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
+        opt.step()
+        pending.append({"loss": loss.item(), **figures})
+        trained += time.perf_counter() - started
+        last = step + 1 == config.steps or bool(config.seconds and trained >= config.seconds)
+        if (step + 1) % config.log_every == 0 or last:
+            record = {"step": step + 1, "seconds": round(trained, 2),
+                      **{k: float(np.mean([p[k] for p in pending])) for k in pending[0]},
+                      "lr": opt.param_groups[0]["lr"]}
+            pending = []
+            history.append(record)
+            if on_log:
+                model.eval()
+                on_log(record)
+                model.train()
+    model.eval()
+    return history
 
 
 def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], config: WorldTrainConfig,
@@ -179,17 +220,8 @@ def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], conf
     gen = torch.Generator().manual_seed(config.seed)
     frames = window_length(sequences, model.config.max_frames)
     with_actions = model.config.action_conditioned
-    opt = _optimizer(model, config)
-    history: list[dict] = []
-    trained, pending = 0.0, []
-    model.train()
-    for step in range(config.steps):
-        if config.seconds and trained >= config.seconds:
-            break
-        started = time.perf_counter()
-        progress = max(step / config.steps, trained / config.seconds if config.seconds else 0.0)
-        for group in opt.param_groups:
-            group["lr"] = lr_at(config, step, progress)
+
+    def batch_loss() -> tuple[torch.Tensor, dict[str, float]]:
         codes, texts, actions = sample_windows(sequences, frames, config.batch_size, gen, with_actions,
                                                config.text_dropout)
         codes = codes.to(device, non_blocking=True)
@@ -200,30 +232,14 @@ def train_world_model(model: WorldModel, sequences: Sequence[CodeSequence], conf
         ids = text_ids(texts, model.config).to(device, non_blocking=True)
         with autocast(runtime, device):
             logits = call(inputs, ids, actions)
-        loss = next_frame_loss(logits.float(), codes, config.change_weight)
-        opt.zero_grad(set_to_none=True)
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)
-        opt.step()
         with torch.no_grad():
             target = codes[:, 1:]
             accuracy = (logits[:, :-1].argmax(-1) == target).float().mean().item()
             copy = (codes[:, :-1] == target).float().mean().item()
-        pending.append((loss.item(), accuracy, copy))
-        trained += time.perf_counter() - started
-        last = step + 1 == config.steps or bool(config.seconds and trained >= config.seconds)
-        if (step + 1) % config.log_every == 0 or last:
-            mean = np.mean(pending, axis=0)
-            record = {"step": step + 1, "seconds": round(trained, 2), "loss": float(mean[0]),
-                      "accuracy": float(mean[1]), "copy_accuracy": float(mean[2]), "lr": opt.param_groups[0]["lr"]}
-            pending = []
-            history.append(record)
-            if on_log:
-                model.eval()
-                on_log(record)
-                model.train()
-    model.eval()
-    return history
+        return next_frame_loss(logits.float(), codes, config.change_weight), {"accuracy": accuracy,
+                                                                             "copy_accuracy": copy}
+
+    return optimise(model, config, batch_loss, on_log)
 
 
 def posttrain(pretrained: WorldModel, episodes: Sequence[CodeSequence], config: WorldTrainConfig,
