@@ -122,3 +122,50 @@ def test_camera_flow_refuses_a_rig_without_moving_cameras_and_trained_seeds(pref
     cli = CliRunner().invoke(app, ["evaluate", "camera", str(MANIFESTS / "conveyor_push.yaml"),
                                    "--world-model", str(wm_folder), "--tokenizer", str(tok_folder)])
     assert cli.exit_code == 2 and "no camera rides on the base" in cli.output, cli.output
+
+
+@pytest.fixture(scope="module")
+def diffusion_models(tmp_path_factory, scenario):
+    """A continuous tokenizer trained 5 steps and a diffusion world model post-trained 5 steps on
+    the front camera's latents and twist actions, saved as flows/train.py saves them."""
+    from models.diffusion_world import post_trainable as diffusion_trainable
+    from models.diffusion_world import preset as diffusion_preset
+    from tasks.world import diffusion
+
+    _, manifest = scenario
+    folder = tmp_path_factory.mktemp("diffusion")
+    ep = rollout(manifest, manifest.seed)
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    torch.manual_seed(0)
+    tokenizer = VideoTokenizer(tokenizer_preset("tiny-cv4x8x8"))
+    train_tokenizer(tokenizer, [square(ep.frames["front"], SIZE)],
+                    TrainConfig(steps=5, batch_size=1, clip_frames=5, size=SIZE, crop=32, threads=1, log_every=5))
+    tok_folder = folder / "tokenizer"
+    tokens.save_checkpoint(tokenizer, tok_folder)
+    config = diffusion_preset("tiny-dwm", latent_channels=tokenizer.config.latent_channels, max_height=SIZE // 8,
+                              max_width=SIZE // 8)
+    model = diffusion_trainable(diffusion.DiffusionWorldModel(config))
+    latents = diffusion.encode_latents(tokenizer, ep.frames["front"], SIZE)
+    n = 1 + 4 * (latents.shape[0] - 1)
+    actions = align_actions(ep.time, ep.action, np.arange(n) / manifest.cameras[0].fps, 4, latents.shape[0],
+                            config.action_dim)
+    diffusion.train_diffusion(model, [diffusion.LatentSequence("seed7", latents, "drive", actions)],
+                              diffusion.DiffusionTrainConfig(steps=5, batch_size=2, threads=1, log_every=5))
+    torch.set_num_threads(before)
+    trained_on = write_episode(ep, folder, "0" * 64, 0).directory
+    wm_folder = folder / "world_model"
+    diffusion.save_checkpoint(model, wm_folder, {"phase": "posttrain", "size": SIZE, "tokenizer": str(tok_folder),
+                                                 "episodes": [str(trained_on)]})
+    return wm_folder, tok_folder
+
+
+def test_camera_flow_evaluates_a_diffusion_world_model(prefect_harness, data_root, scenario, diffusion_models):
+    """Either family: the diffusion model samples with --sampler-steps, the same table comes out."""
+    path, _ = scenario
+    wm_folder, tok_folder = diffusion_models
+    result = evaluate_camera(str(path), str(wm_folder), str(tok_folder), episodes=1, horizon=2, sampler_steps=2)
+    assert result["windows"] == 4 and result["rollout_s_per_frame"] > 0
+    body = json.loads((data_root / "evaluations" / result["evaluation_id"] / "camera.json").read_text())
+    assert body["params"]["sampler_steps"] == 2
+    assert {r["source"] for r in body["table"]} == {"simulator", "ceiling", "model", "shuffled", "floor"}
