@@ -8,7 +8,12 @@ evaluate camera` uses). Prints per horizon the mean true rotation, each way's me
 error and median translation-direction error (degrees) and its failures (pairs with too few
 matches, scored as no motion).
 
-    .venv/bin/python bench/camera_motion.py [--seeds 10000 10001] [--camera front]
+With ``--tokenizer CKPT ...`` it also reads the motion frame to frame from each tokenizer's
+reconstruction of the same frames (what `evaluate camera` calls the ceiling: no world model can
+score better than the frames its decoder gives back) and prints each one's PSNR on them, so a
+tokenizer can be judged for camera control before a world model is trained on it.
+
+    .venv/bin/python bench/camera_motion.py [--seeds 10000 10001] [--camera front] [--tokenizer CKPT ...]
 """
 
 from __future__ import annotations
@@ -21,7 +26,9 @@ import numpy as np
 
 from tasks.manifests import load
 from tasks.tokenize.data import square
+from tasks.tokenize.tokens import load_checkpoint
 from tasks.world.camera_control import render_heldout
+from tasks.world.heldout import decode, encode
 from tasks.world.camera_motion import motion_errors, motion_table, trajectory_errors
 
 MANIFEST = Path(__file__).resolve().parent.parent / "manifests" / "camera_control_aisle.yaml"
@@ -34,12 +41,22 @@ def main() -> None:
     parser.add_argument("--camera", default="front")
     parser.add_argument("--size", type=int, default=64)
     parser.add_argument("--every", type=int, default=6, help="frames between window starts")
+    parser.add_argument("--tokenizer", nargs="*", default=[],
+                        help="tokenizer checkpoint folders whose reconstruction is read too")
     args = parser.parse_args()
     manifest = load(MANIFEST)
-    rows, started = [], time.perf_counter()
+    tokenizers = {Path(t).name[:12]: load_checkpoint(Path(t)) for t in args.tokenizer}
+    rows, psnr, started = [], {name: [] for name in tokenizers}, time.perf_counter()
     for seed in args.seeds:
         truth, poses = render_heldout(manifest, seed, args.camera)
         frames, cams = square(truth.frames, args.size), [c.square(args.size) for c in poses]
+        recons = {}
+        for name, tokenizer in tokenizers.items():
+            recon = decode(tokenizer, encode(tokenizer, truth.frames, args.size))
+            mse = np.mean((recon.astype(np.float64) - frames[:len(recon)]) ** 2)
+            psnr[name].append(10 * np.log10(255.0 ** 2 / max(mse, 1e-12)))
+            recons[name] = recon
+        frames = frames[:min([len(frames), *map(len, recons.values())])]
         for last in range(8, len(frames) - max(HORIZONS) - 1, args.every):
             for h in HORIZONS:
                 for name, planar in (("general, pair", False), ("planar, pair", True)):
@@ -48,10 +65,15 @@ def main() -> None:
                                                  planar=planar)})
             chained = trajectory_errors(frames[last:last + max(HORIZONS) + 1], cams[last:last + max(HORIZONS) + 1])
             rows += [{"horizon": h, "source": "planar, frame to frame", **chained[h - 1]} for h in HORIZONS]
+            for name, recon in recons.items():
+                chained = trajectory_errors(recon[last:last + max(HORIZONS) + 1], cams[last:last + max(HORIZONS) + 1])
+                rows += [{"horizon": h, "source": f"reconstruction {name}", **chained[h - 1]} for h in HORIZONS]
     table = motion_table(rows)
     print(f"# camera_motion ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}): {MANIFEST.name}, camera "
           f"{args.camera} at {args.size} px, seeds {args.seeds}, windows every {args.every} frames; "
           f"{time.perf_counter() - started:.0f} s")
+    for name, values in psnr.items():
+        print(f"tokenizer {name}: PSNR {min(values):.2f}-{max(values):.2f} dB on these episodes")
     print("| horizon (frames) | true rotation | way | rotation error, mean | direction error, median | failed |")
     print("|---|---|---|---|---|---|")
     for r in table:

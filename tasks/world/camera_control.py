@@ -60,14 +60,16 @@ def window_rows(windows: list[physics.Window], truths: dict[str, np.ndarray], po
     """Per window, horizon and source: the re-estimated motion's errors (`motion_errors`).
     truths[episode key] holds the episode's true frames at the model's size, poses[key] the
     camera at each of its frames (the rollout's resolution)."""
-    rows = []
+    rows, true_steps = [], {}  # the true frames' steps, estimated once where windows overlap
     for w in windows:
         key, last = w.info["episode"], int(w.info["last_context_frame"])
         cams = [c.square(size) for c in poses[key][last:last + len(w.true) + 1]]
         clips = {"simulator": [truths[key][last], *w.true],
                  **{s: [w.context_last, *w.frames(s)] for s in SOURCES[1:]}}
         for source, clip in clips.items():
-            for h, errors in enumerate(trajectory_errors(clip, cams), start=1):
+            shared = {"steps": true_steps, "keys": [(key, last + i) for i in range(len(clip))]} \
+                if source == "simulator" else {}
+            for h, errors in enumerate(trajectory_errors(clip, cams, **shared), start=1):
                 if h in horizons:
                     rows.append({"window": w.key, "horizon": h, "source": source, **errors})
     return rows

@@ -258,7 +258,7 @@ def motion_errors(img_a: np.ndarray, img_b: np.ndarray, cam_a: PinholeCamera, ca
 
 
 def trajectory_errors(frames: list[np.ndarray] | np.ndarray, cams: list[PinholeCamera], planar: bool = True,
-                      **options) -> list[dict]:
+                      steps: dict | None = None, keys: list | None = None, **options) -> list[dict]:
     """The camera's trajectory re-estimated along a clip (visual odometry) and scored at every
     frame against the truth: frames[0] is the reference, frames[h] the frame h steps later,
     cams[h] the camera that (should have) taken it. Each step's motion is estimated between
@@ -268,14 +268,25 @@ def trajectory_errors(frames: list[np.ndarray] | np.ndarray, cams: list[PinholeC
     the composed translation takes every moving step as equally long (a rig whose speed
     changes little over the clip); a step that saw no motion, or a turn only, adds none, and a
     failed step counts as no motion. Returns, for h = 1 .. len(frames) - 1, the keys of
-    `motion_errors` (estimated: every step up to h was)."""
+    `motion_errors` (estimated: every step up to h was).
+
+    ``steps``, with ``keys`` (one hashable per frame), keeps each step's estimate under
+    ``(keys[h - 1], keys[h])`` across calls, so clips that share frames (overlapping windows of
+    one episode's true frames) estimate each step once; the options must not change between
+    calls that share it."""
     r_acc, t_acc, ok, out = np.eye(3), np.zeros(3), True, []
     for h in range(1, len(frames)):
         a, b = cams[h - 1], cams[h]
         # Consecutive frames: a turn of more than STEP_TURN_DEG between them is not a rig's.
         opts = dict({"max_turn_deg": STEP_TURN_DEG, **options},
                     up=a.extrinsics()[0] @ np.array([0.0, 0.0, 1.0])) if planar else options
-        step = estimate_motion(frames[h - 1], frames[h], a.intrinsics, **opts)
+        key = None if steps is None or keys is None else (keys[h - 1], keys[h])
+        if key is not None and key in steps:
+            step = steps[key]
+        else:
+            step = estimate_motion(frames[h - 1], frames[h], a.intrinsics, **opts)
+            if key is not None:
+                steps[key] = step
         ok = ok and step is not None
         r_step = np.eye(3) if step is None else step.R
         t_step = np.zeros(3) if step is None or step.t is None else step.t

@@ -194,3 +194,22 @@ def test_a_trajectory_is_followed_frame_to_frame(shoot):
     assert held[-1]["rotation_deg"] == pytest.approx(16.0) and held[-1]["direction_deg"] == 90.0
     blank = trajectory_errors([np.zeros((SIZE, SIZE, 3), np.uint8)] * 9, cams)
     assert not blank[-1]["estimated"] and blank[-1]["rotation_deg"] == pytest.approx(16.0)
+
+
+def test_overlapping_clips_estimate_each_shared_step_once(shoot, monkeypatch):
+    """Two clips of one trajectory that share four steps: with a shared ``steps`` store the
+    shared steps are estimated once and every error is the same as without it."""
+    import tasks.world.camera_motion as camera_motion
+
+    rot = _look(START, (1.0, 0.0, -0.05))
+    shots = [shoot(START + [0.06 * i, 0.01 * i, 0.0], _yaw(2 * i) @ rot) for i in range(9)]
+    frames, cams = [f for f, _ in shots], [c for _, c in shots]
+    alone = [trajectory_errors(frames[:7], cams[:7]), trajectory_errors(frames[2:], cams[2:])]
+    calls = []
+    real = camera_motion.estimate_motion
+    monkeypatch.setattr(camera_motion, "estimate_motion", lambda *a, **k: calls.append(1) or real(*a, **k))
+    steps: dict = {}
+    shared = [trajectory_errors(frames[:7], cams[:7], steps=steps, keys=list(range(7))),
+              trajectory_errors(frames[2:], cams[2:], steps=steps, keys=list(range(2, 9)))]
+    assert shared == alone
+    assert len(calls) == 8  # 6 + 6 steps, 4 of them shared
