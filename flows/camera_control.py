@@ -121,7 +121,7 @@ def evaluate_camera(manifest: str, world_model: str | None = None, tokenizer: st
         horizons = list(range(every, every * horizon + 1, every))
         rows = camera_control.window_rows(windows, frames, poses, horizons, size)
         table = camera_control.motion_table(rows)
-        check = camera_control.check_beats_copy_last(table)
+        check = camera_control.check_beats_copy_last(table, rows=rows)
         counts = {"episodes": len(seeds), "seeds": f"{seeds[0]}..{seeds[-1]}", "windows": len(windows),
                   "camera": name, "rollout_s_per_frame": round(per_frame, 4)}
         body = camera_control.report_body(table, check, counts)

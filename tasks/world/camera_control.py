@@ -14,6 +14,7 @@ frames later.
 from __future__ import annotations
 
 import math
+from collections import defaultdict
 
 import numpy as np
 
@@ -75,15 +76,46 @@ def window_rows(windows: list[physics.Window], truths: dict[str, np.ndarray], po
     return rows
 
 
-def check_beats_copy_last(table: list[dict], min_h: int = 4) -> dict:
+def paired_difference(rows: list[dict], horizon: int, source: str, other: str, draws: int = 2000,
+                      seed: int = 0) -> dict | None:
+    """Mean of ``source``'s minus ``other``'s rotation error over the windows both have at
+    ``horizon``, with a 95% bootstrap interval that resamples whole episodes (a window's key is
+    ``episode@frame``; windows of one episode overlap, so they are not independent draws).
+    None when no window has both."""
+    per_episode: dict[str, list[float]] = defaultdict(list)
+    pairs: dict[str, dict] = defaultdict(dict)
+    for r in rows:
+        if r["horizon"] == horizon and r["source"] in (source, other):
+            pairs[r["window"]][r["source"]] = r["rotation_deg"]
+    for window, got in pairs.items():
+        if source in got and other in got:
+            per_episode[window.rsplit("@", 1)[0]].append(got[source] - got[other])
+    if not per_episode:
+        return None
+    episodes = [np.asarray(v) for v in per_episode.values()]
+    rng = np.random.default_rng(seed)
+    means = [np.concatenate([episodes[i] for i in rng.integers(0, len(episodes), len(episodes))]).mean()
+             for _ in range(draws)]
+    low, high = np.percentile(means, [2.5, 97.5])
+    return {"mean": float(np.concatenate(episodes).mean()), "low": float(low), "high": float(high),
+            "episodes": len(episodes), "windows": int(sum(len(v) for v in episodes))}
+
+
+def check_beats_copy_last(table: list[dict], min_h: int = 4, rows: list[dict] | None = None) -> dict:
     """Issue 33's target: the model's mean rotation error below copy-last-frame's at every horizon
-    of `min_h` frames or more."""
+    of `min_h` frames or more. With the per-window ``rows``, each horizon's model-minus-floor
+    difference also carries its episode-bootstrap interval (`paired_difference`), which says
+    whether the margin holds beyond the episodes drawn."""
     by = {(r["horizon"], r["source"]): r["rotation_mean_deg"] for r in table}
     horizons = sorted({h for h, _ in by if h >= min_h})
     detail = {h: (by.get((h, "model")), by.get((h, "floor"))) for h in horizons}
     passed = bool(horizons) and all(m is not None and f is not None and m < f for m, f in detail.values())
-    return {"passed": passed, "min_horizon": min_h,
-            "model_vs_floor_deg": {str(h): [m, f] for h, (m, f) in detail.items()}}
+    out = {"passed": passed, "min_horizon": min_h,
+           "model_vs_floor_deg": {str(h): [m, f] for h, (m, f) in detail.items()}}
+    if rows is not None:
+        out["model_minus_floor_deg"] = {str(h): paired_difference(rows, h, "model", "floor") for h in horizons}
+        out["model_minus_shuffled_deg"] = {str(h): paired_difference(rows, h, "model", "shuffled") for h in horizons}
+    return out
 
 
 def report_body(table: list[dict], check: dict, counts: dict) -> str:
@@ -98,12 +130,21 @@ def report_body(table: list[dict], check: dict, counts: dict) -> str:
                      f"{fmt(r['rotation_median_deg'])} | {fmt(r['direction_mean_deg'])} / "
                      f"{fmt(r['direction_median_deg'])} | {fmt(r.get('true_rotation_mean_deg'))} | {r['failures']} |")
     verdict = "passed" if check["passed"] else "failed"
+    paired = []
+    for name, other in (("model_minus_floor_deg", "copy-last"), ("model_minus_shuffled_deg", "shuffled actions")):
+        for h, d in check.get(name, {}).items():
+            if d is not None:
+                paired.append(f"| {h} | model minus {other} | {d['mean']:+.2f} [{d['low']:+.2f}, {d['high']:+.2f}] | "
+                              f"{d['episodes']} / {d['windows']} |")
+    paired_table = ("\n\nPaired difference of rotation error per window, 95% interval from resampling whole "
+                    "episodes:\n\n| horizon (frames) | difference | mean [interval] (deg) | episodes / windows |\n"
+                    "|---|---|---|---|\n" + "\n".join(paired)) if paired else ""
     return (f"{counts['windows']} windows of {counts['episodes']} held-out episodes (seeds {counts['seeds']}), "
             f"camera `{counts['camera']}`; {counts['rollout_s_per_frame']:.4f} s of rollout per generated frame "
             "(encoding and decoding included).\n\n" + "\n".join(lines) +
             f"\n\nRotation error below copy-last-frame's at every horizon of {check['min_horizon']} frames or more: "
-            f"**{verdict}** (model, floor: {check['model_vs_floor_deg']}).\n")
+            f"**{verdict}** (model, floor: {check['model_vs_floor_deg']}).{paired_table}\n")
 
 
 __all__ = ["SOURCES", "moving_cameras", "render_heldout", "window_rows", "motion_table", "check_beats_copy_last",
-           "report_body"]
+           "paired_difference", "report_body"]
