@@ -57,13 +57,15 @@ def main() -> None:
             psnr[name].append(10 * np.log10(255.0 ** 2 / max(mse, 1e-12)))
             recons[name] = recon
         frames = frames[:min([len(frames), *map(len, recons.values())])]
+        true_steps: dict = {}  # windows overlap: each step of the true frames is estimated once
         for last in range(8, len(frames) - max(HORIZONS) - 1, args.every):
             for h in HORIZONS:
                 for name, planar in (("general, pair", False), ("planar, pair", True)):
                     rows.append({"horizon": h, "source": name,
                                  **motion_errors(frames[last], frames[last + h], cams[last], cams[last + h],
                                                  planar=planar)})
-            chained = trajectory_errors(frames[last:last + max(HORIZONS) + 1], cams[last:last + max(HORIZONS) + 1])
+            chained = trajectory_errors(frames[last:last + max(HORIZONS) + 1], cams[last:last + max(HORIZONS) + 1],
+                                        steps=true_steps, keys=list(range(last, last + max(HORIZONS) + 1)))
             rows += [{"horizon": h, "source": "planar, frame to frame", **chained[h - 1]} for h in HORIZONS]
             for name, recon in recons.items():
                 chained = trajectory_errors(recon[last:last + max(HORIZONS) + 1], cams[last:last + max(HORIZONS) + 1])
