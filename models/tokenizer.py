@@ -214,6 +214,9 @@ PRESETS: dict[str, TokenizerConfig] = {
     # package at 64 x 64 spans a latent cell or two, where 8x8 blurs it away), 4x the bits.
     "small-dv4x4x4": TokenizerConfig(name="small-dv4x4x4", variant="discrete", spatial_compression=4,
                                      channels=(32, 64), **_BASE),
+    # Its continuous twin, for the diffusion world model on the same 4x4 latent grid.
+    "small-cv4x4x4": TokenizerConfig(name="small-cv4x4x4", variant="continuous", spatial_compression=4,
+                                     channels=(32, 64), **_BASE),
 }
 
 

@@ -49,7 +49,7 @@ def test_shapes_and_round_trip(name):
         assert torch.allclose(again, recon, atol=1e-5)
 
 
-@pytest.mark.parametrize("name", ["tiny-dv4x8x8", "tiny-cv4x8x8", "tiny-dv8x8x8", "small-dv4x4x4"])
+@pytest.mark.parametrize("name", ["tiny-dv4x8x8", "tiny-cv4x8x8", "tiny-dv8x8x8", "small-dv4x4x4", "small-cv4x4x4"])
 def test_causal_latents_and_reconstruction(name):
     """Changing frames after t leaves every latent frame that covers only frames <= t unchanged."""
     torch.manual_seed(1)
