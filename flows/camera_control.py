@@ -18,20 +18,19 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
+from flows.heldout import heldout_setup
 from flows.params import Horizon, PanelEpisodes, SamplerSteps, Seed
 from flows.params_world import HELDOUT_FIRST_SEED, CameraParams
-from flows.physics import checkpoint_artifact_id
 from flows.recording import recorded_run
 from flows.report import progress, publish
 from schemas import paths
-from schemas.hashing import content_hash, stable_id
 from schemas.settings import Settings
 from tasks import manifests
-from tasks.lookup import verified_artifact, world_model_folder
+from tasks.lookup import verified_artifact
 from tasks.tokenize import tokens
-from tasks.world import camera_control, checkpoints, evaluation, heldout, report
+from tasks.world import camera_control, heldout, report
 from tasks.world.data import episode_text
-from tasks.world.family import DIFFUSION, family_of, load_world_model, model_section, read_world_config
+from tasks.world.family import load_world_model
 
 STAGE = "evaluate_camera"
 
@@ -78,22 +77,10 @@ def evaluate_camera(manifest: str, world_model: str | None = None, tokenizer: st
               "first_seed": first_seed, "camera": name, "horizon": horizon, "context": context, "stride": stride,
               "shuffle_seed": shuffle_seed}
     with recorded_run("evaluate-camera", settings, scenario, source_uri=manifest, params=params) as run:
-        wm_folder = world_model_folder(run.warehouse, root, world_model)
-        config = read_world_config(wm_folder)
-        if family_of(config) == DIFFUSION:
-            params["sampler_steps"] = sampler_steps
-        overlap = evaluation.trained_seeds(config, root) & set(seeds)
-        if overlap:
-            raise ValueError(f"seeds {sorted(overlap)} trained this world model: evaluate on held-out seeds")
-        tok_folder = Path(tokenizer) if tokenizer else root / config["tokenizer"]
-        size, window = int(config["size"]), int(model_section(config)["max_frames"])
-        every = int(model_section(config)["temporal_compression"])
-        context = context or max(1, window - horizon)
-        wm_id = checkpoint_artifact_id(run, wm_folder / checkpoints.WEIGHTS_FILE, "checkpoint", {"model": "world_model"})
-        tok_id = checkpoint_artifact_id(run, tok_folder / tokens.WEIGHTS_FILE, "checkpoint", {"model": "tokenizer"})
-        meaning = {**params, "world_model": wm_id, "tokenizer": tok_id, "context": context}
-        key = stable_id(STAGE, wm_id, tok_id, run.manifest_hash, content_hash(meaning))
-        evaluation_id = stable_id("evaluation", key)
+        setup = heldout_setup(run, STAGE, params, world_model, tokenizer, seeds, horizon, context, sampler_steps)
+        wm_folder, tok_folder, size, every, context = (setup.wm_folder, setup.tok_folder, setup.size, setup.every,
+                                                       setup.context)
+        wm_id, tok_id, key, evaluation_id = setup.wm_id, setup.tok_id, setup.key, setup.evaluation_id
         files = {"result": paths.resolve(root, paths.CAMERA_RESULT, evaluation_id=evaluation_id),
                  "report": paths.resolve(root, paths.CAMERA_REPORT, evaluation_id=evaluation_id)}
         stage = run.stage(STAGE, key, [files["result"]])

@@ -16,19 +16,16 @@ from pathlib import Path
 from prefect import flow, task
 from prefect.cache_policies import NO_CACHE
 
+from flows.heldout import heldout_setup
 from flows.params import Horizon, PanelEpisodes, SamplerSteps, Seed
 from flows.params_world import HELDOUT_FIRST_SEED, PhysicsParams
-from flows.recording import RunContext, recorded_run
+from flows.recording import recorded_run
 from flows.report import progress, publish
 from schemas import paths
-from schemas.hashing import content_hash, stable_id
-from schemas.records import ArtifactRecord, LineageBatch
 from schemas.settings import Settings
 from tasks import manifests
-from tasks.lookup import verified_artifact, verified_file, world_model_folder
-from tasks.tokenize import tokens
-from tasks.world import checkpoints, evaluation, physics, report
-from tasks.world.family import DIFFUSION, family_of, model_section, read_world_config
+from tasks.lookup import verified_artifact
+from tasks.world import evaluation, physics, report
 from tasks.world.data import episode_text
 from tasks.world.geometry import PinholeCamera
 
@@ -38,23 +35,6 @@ STAGE = "evaluate_physics"
 
 render_heldout = task(evaluation.render_heldout, name="render-heldout", retries=1, cache_policy=NO_CACHE)
 predict_heldout = task(evaluation.predict_heldout, name="predict-heldout", cache_policy=NO_CACHE)
-
-
-def checkpoint_artifact_id(run: RunContext, path: Path, kind: str, attrs: dict) -> str:
-    """The lineage id of a checkpoint file, checked against the sha256 lineage recorded for it
-    (TamperedArtifact); one lineage has never seen is recorded now as an external input (a
-    checkpoint brought from elsewhere may be evaluated; its row says it has no lineage here)."""
-    root = run.settings.data_root.resolve()
-    artifact_id, _, digest = verified_file(run.warehouse, root, path, kind, kind)
-    if artifact_id is not None:
-        return artifact_id
-    uri = path.relative_to(root).as_posix() if path.is_relative_to(root) else str(path)
-    artifact_id = stable_id(kind, uri, digest)
-    run.write(LineageBatch(artifacts=[ArtifactRecord(artifact_id=artifact_id, kind=kind, uri=uri, sha256=digest,
-                                                     bytes=path.stat().st_size,
-                                                     attrs={**attrs, "registered_by": "evaluate-physics",
-                                                            "external": True})]))
-    return artifact_id
 
 
 @flow(name="evaluate-physics", log_prints=True)
@@ -85,22 +65,10 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
               "first_seed": first_seed, "camera": primary.name, "horizon": horizon, "context": context,
               "stride": stride, "move_threshold_cm": move_threshold_cm, "shuffle_seed": shuffle_seed}
     with recorded_run("evaluate-physics", settings, scenario, source_uri=manifest, params=params) as run:
-        wm_folder = world_model_folder(run.warehouse, root, world_model)
-        config = read_world_config(wm_folder)
-        if family_of(config) == DIFFUSION:
-            params["sampler_steps"] = sampler_steps  # so an autoregressive evaluation's id is as before
-        overlap = evaluation.trained_seeds(config, root) & set(seeds)
-        if overlap:
-            raise ValueError(f"seeds {sorted(overlap)} trained this world model: evaluate on held-out seeds")
-        tok_folder = Path(tokenizer) if tokenizer else root / config["tokenizer"]
-        size, window = int(config["size"]), int(model_section(config)["max_frames"])
-        every = int(model_section(config)["temporal_compression"])  # report every latent step
-        context = context or max(1, window - horizon)
-        wm_id = checkpoint_artifact_id(run, wm_folder / checkpoints.WEIGHTS_FILE, "checkpoint", {"model": "world_model"})
-        tok_id = checkpoint_artifact_id(run, tok_folder / tokens.WEIGHTS_FILE, "checkpoint", {"model": "tokenizer"})
-        meaning = {**params, "world_model": wm_id, "tokenizer": tok_id, "context": context}  # not the paths
-        key = stable_id(STAGE, wm_id, tok_id, run.manifest_hash, content_hash(meaning))
-        evaluation_id = stable_id("evaluation", key)
+        setup = heldout_setup(run, STAGE, params, world_model, tokenizer, seeds, horizon, context, sampler_steps)
+        wm_folder, config, tok_folder, size, every, context = (setup.wm_folder, setup.config, setup.tok_folder,
+                                                               setup.size, setup.every, setup.context)
+        wm_id, tok_id, key, evaluation_id = setup.wm_id, setup.tok_id, setup.key, setup.evaluation_id
         result_path = paths.resolve(root, paths.PHYSICS_RESULT, evaluation_id=evaluation_id)
         stage = run.stage(STAGE, key, [result_path])
         if stage.done:
