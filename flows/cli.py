@@ -20,7 +20,7 @@ ORDER = ["audit", "summary", "sql", "report", "register", "simulate", "corpus", 
 
 app.info.help = __doc__
 app.registered_commands.sort(key=lambda c: ORDER.index(c.name or c.callback.__name__))
-evaluate_app.registered_commands.sort(key=lambda c: c.name)  # camera, physics, policies
+evaluate_app.registered_commands.sort(key=lambda c: c.name)  # camera, physics, policies, rig
 app.add_typer(manifest_app, name="manifest")
 app.add_typer(evaluate_app, name="evaluate")
 

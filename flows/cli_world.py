@@ -6,7 +6,7 @@ from pathlib import Path
 
 from flows import cli_checks as need
 from flows.cli_shell import app, command, evaluate_app, fail, out, refuse, writing
-from flows.params_world import CameraParams, PhysicsParams, TokenizeParams, TrainParams
+from flows.params_world import CameraParams, PhysicsParams, RigParams, TokenizeParams, TrainParams
 from schemas.settings import Settings
 
 
@@ -69,25 +69,30 @@ def train(params: TrainParams) -> None:
               highlight=False)
 
 
-@command(evaluate_app, PhysicsParams, "physics")
-def evaluate_physics_cmd(params: PhysicsParams) -> None:
-    """A world model against MuJoCo on held-out seeds: per-horizon PSNR, SSIM, package position
-    error and IoU beside copy-last-frame and the tokenizer's reconstruction, true against
-    shuffled actions (Prefect flow `evaluate-physics`)."""
+def _heldout(params, evaluate) -> dict:
+    """Run a held-out evaluation flow (physics, camera, rig) with the world model and tokenizer
+    resolved and checked first; a refusal is one line, exit 2."""
     need.simulable(params.manifest)
     folder = need.world_model(params.world_model)
     from tasks.world.family import TOKENIZER_VARIANT, family_of, read_world_config
 
     variant = TOKENIZER_VARIANT[family_of(read_world_config(folder))]  # a diffusion one reads a continuous tokenizer
     tokenizer = need.tokenizer(params.tokenizer, variant) if params.tokenizer else None
-    from flows.physics import evaluate_physics
-
     writing()
     try:
-        resolved = params.model_copy(update={"world_model": folder, "tokenizer": tokenizer})
-        result = evaluate_physics(**resolved.model_dump())
+        return evaluate(**params.model_copy(update={"world_model": folder, "tokenizer": tokenizer}).model_dump())
     except (FileNotFoundError, ValueError) as exc:
         refuse(exc)
+
+
+@command(evaluate_app, PhysicsParams, "physics")
+def evaluate_physics_cmd(params: PhysicsParams) -> None:
+    """A world model against MuJoCo on held-out seeds: per-horizon PSNR, SSIM, package position
+    error and IoU beside copy-last-frame and the tokenizer's reconstruction, true against
+    shuffled actions (Prefect flow `evaluate-physics`)."""
+    from flows.physics import evaluate_physics
+
+    result = _heldout(params, evaluate_physics)
     checks = ", ".join(f"{k} {'passed' if v else 'failed'}" for k, v in result["checks"].items())
     out.print(f"evaluation {result['evaluation_id']} ({result['windows']} windows, {result['moving']} with the "
               f"package moving): {checks}; table and plots under {result['folder']}", highlight=False)
@@ -98,19 +103,22 @@ def evaluate_camera_cmd(params: CameraParams) -> None:
     """Camera control: a world model of a rig whose action is its cameras' motion, on held-out
     seeds; the camera motion re-estimated from its frames against the commanded motion, beside
     copy-last-frame and the tokenizer's reconstruction (Prefect flow `evaluate-camera`)."""
-    need.simulable(params.manifest)
-    folder = need.world_model(params.world_model)
-    from tasks.world.family import TOKENIZER_VARIANT, family_of, read_world_config
-
-    variant = TOKENIZER_VARIANT[family_of(read_world_config(folder))]
-    tokenizer = need.tokenizer(params.tokenizer, variant) if params.tokenizer else None
     from flows.camera_control import evaluate_camera
 
-    writing()
-    try:
-        result = evaluate_camera(**params.model_copy(update={"world_model": folder, "tokenizer": tokenizer}).model_dump())
-    except (FileNotFoundError, ValueError) as exc:
-        refuse(exc)
+    result = _heldout(params, evaluate_camera)
     verdict = "passed" if result["checks"]["beats_copy_last"] else "failed"
     out.print(f"evaluation {result['evaluation_id']} ({result['windows']} windows, camera {result['camera']}): "
               f"rotation error below copy-last's {verdict}; table under {result['folder']}", highlight=False)
+
+
+@command(evaluate_app, RigParams, "rig")
+def evaluate_rig_cmd(params: RigParams) -> None:
+    """Multi-view rig: a world model trained on a rig's tiled video (every view generated
+    together), on held-out seeds; the rig's ego-motion re-estimated from all its views in cm
+    against the commanded motion, and how well neighbouring views agree (Prefect flow `evaluate-rig`)."""
+    from flows.rig import evaluate_rig
+
+    result = _heldout(params, evaluate_rig)
+    verdict = "passed" if result["checks"]["beats_copy_last"] else "failed"
+    out.print(f"evaluation {result['evaluation_id']} ({result['windows']} windows, rig {result['rig']}): "
+              f"ego-motion error below copy-last's {verdict}; tables under {result['folder']}", highlight=False)

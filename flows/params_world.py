@@ -61,7 +61,7 @@ class TrainParams(ComputeParams):
                                                     "*-dwm with --family diffusion (models/diffusion_world.py)")
     pretrain_steps: Steps = Field(200, description="pre-training steps")
     posttrain_steps: Steps = Field(100, description="post-training steps")
-    camera: str | None = Field(None, description="post-train on this camera only (default: every camera)")
+    camera: str | None = Field(None, description="post-train on this camera or rig only (default: every camera)")
     window: Window | None = Field(None, description="latent frames per training window (default: the preset's "
                                                     "max_frames)")
     seed: Seed = 0
@@ -134,10 +134,11 @@ class TrainParams(ComputeParams):
 
         PRESETS = self.presets()
 
-        cameras = read_meta(folder).get("cameras", [])
-        if self.camera is not None and self.camera not in cameras:
+        meta = read_meta(folder)
+        cameras, rigs = meta.get("cameras", []), meta.get("rigs", [])
+        if self.camera is not None and self.camera not in cameras + rigs:
             raise Refused(f"{{camera}} {self.camera!r}: the episodes of {self.manifest} have cameras "
-                          f"{', '.join(cameras)}")
+                          f"{', '.join(cameras)}" + (f" and rigs {', '.join(rigs)}" if rigs else ""))
         if self.action_totals:
             width, room = read_steps(folder)[1].shape[1], PRESETS[self.preset_name].action_dim
             if self.action_totals > width or width + self.action_totals > room:
@@ -145,8 +146,8 @@ class TrainParams(ComputeParams):
                               f"{width} action values a step and preset {self.preset_name} takes {room} values in all")
 
 
-class HeldoutParams(FlowParams):
-    """What a world model's evaluation on held-out seeds of a manifest takes (physics, camera)."""
+class HeldoutBase(FlowParams):
+    """What a world model's evaluation on held-out seeds of a manifest takes (physics, camera, rig)."""
 
     manifest: str = Field(description="scenario manifest YAML")
     world_model: str | None = Field(None, description="post-trained world-model checkpoint folder or id, "
@@ -155,7 +156,6 @@ class HeldoutParams(FlowParams):
                                                     "was trained with)")
     episodes: PanelEpisodes = Field(10, description="held-out episodes")
     first_seed: Seed = Field(HELDOUT_FIRST_SEED, description="seeds first_seed.. (never those the model trained on)")
-    camera: str | None = Field(None, description="world-mounted camera (default: the first)")
     horizon: Horizon = Field(4, description="latent frames predicted per window")
     context: int | None = None
     stride: int = 2
@@ -165,6 +165,18 @@ class HeldoutParams(FlowParams):
     cli_arguments = ("manifest",)
     cli_paths = ("manifest",)
     cli_hidden = ("context", "stride", "shuffle_seed")
+
+
+class HeldoutParams(HeldoutBase):
+    camera: str | None = Field(None, description="world-mounted camera (default: the first)")
+
+
+class RigParams(HeldoutBase):
+    manifest: str = Field(description="manifest YAML with a rig (`rigs:`) of cameras riding on the vehicle")
+    rig: str | None = Field(None, description="the rig whose tiled video the world model generates "
+                                              "(default: the manifest's first)")
+    horizon: Horizon = Field(2, description="latent frames predicted per window (the ego-motion is measured "
+                                            "after each)")
 
 
 class PhysicsParams(HeldoutParams):

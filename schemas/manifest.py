@@ -89,6 +89,35 @@ def same_pose(a: Camera, b: Camera) -> bool:
     return sum((u - v) ** 2 for u, v in zip(*views)) ** 0.5 <= SAME_DIRECTION
 
 
+class Rig(Frozen):
+    """Several cameras recorded as one video: their frames tiled in ``layout`` (rows of camera
+    names, each row as wide as the others), so a world model trained on the rig's video
+    generates every view together (issue 33 point 4). The cameras must share resolution and fps."""
+
+    name: str = Field(pattern=r"^[a-z][a-z0-9_]{0,31}$")
+    layout: tuple[tuple[str, ...], ...] = Field(min_length=1, max_length=4)
+
+    @field_validator("layout")
+    @classmethod
+    def _rectangular(cls, value: tuple[tuple[str, ...], ...]) -> tuple[tuple[str, ...], ...]:
+        widths = {len(row) for row in value}
+        if len(widths) != 1 or 0 in widths:
+            raise ValueError(f"rows of {sorted(widths)} cameras: every row of the layout needs the same number")
+        if max(widths) > 4:
+            raise ValueError("at most 4 cameras a row")
+        names = [n for row in value for n in row]
+        if len(names) < 2:
+            raise ValueError("a rig tiles at least two cameras")
+        repeated = sorted({n for n in names if names.count(n) > 1})
+        if repeated:
+            raise ValueError(f"camera(s) {', '.join(repeated)} appear more than once")
+        return value
+
+    @property
+    def cameras(self) -> list[str]:
+        return [n for row in self.layout for n in row]
+
+
 class Embodiment(Frozen):
     kind: Literal["arm", "mobile", "vehicle"]
     robot: str = Field("builtin_arm", pattern=r"^[a-z][a-z0-9_\-]{0,63}$")
@@ -249,6 +278,8 @@ class ScenarioManifest(Frozen):
     horizon_s: float = Field(gt=0, le=MAX_HORIZON_S)
     seed: int = Field(0, ge=0, lt=2**31)
     parent: str | None = Field(None, pattern=r"^[0-9a-f]{64}$", description="hash of the manifest this one derives from")
+    rigs: tuple[Rig, ...] = Field(default=(), max_length=4,
+                                  description="cameras also recorded together as one tiled video each")
     meta: ManifestMeta = ManifestMeta()
 
     @field_validator("stressors", mode="after")
@@ -275,6 +306,41 @@ class ScenarioManifest(Frozen):
                                      f"{cam.mount} mount, position and view direction (look_at); cameras at one "
                                      f"pose record the same view")
         return self
+
+    @model_validator(mode="after")
+    def _rigs_tile_cameras(self) -> "ScenarioManifest":
+        cameras = {c.name: c for c in self.cameras}
+        taken: dict[str, str] = dict.fromkeys(cameras, "a camera")
+        for i, rig in enumerate(self.rigs):
+            if rig.name in taken:
+                raise FieldError(f"rigs.{i}.name", f"{rig.name!r} is also the name of {taken[rig.name]}; "
+                                                   "rig and camera names must differ")
+            taken[rig.name] = f"rigs.{i}"
+            first = None
+            for r, row in enumerate(rig.layout):
+                for c, name in enumerate(row):
+                    cam = cameras.get(name)
+                    if cam is None:
+                        raise FieldError(f"rigs.{i}.layout.{r}.{c}", f"{name!r} is not one of the manifest's "
+                                                                     f"cameras ({', '.join(cameras)})")
+                    first = first or cam
+                    if (cam.resolution, cam.fps) != (first.resolution, first.fps):
+                        raise FieldError(f"rigs.{i}.layout.{r}.{c}",
+                                         f"{name!r} records {cam.resolution[0]}x{cam.resolution[1]} at {cam.fps:g} "
+                                         f"fps, {first.name!r} {first.resolution[0]}x{first.resolution[1]} at "
+                                         f"{first.fps:g}: a rig's cameras share resolution and fps")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _leave_out_no_rigs(self, handler):
+        # No rigs dumps (and hashes) as a manifest from before the field: every existing manifest keeps its hash.
+        body = handler(self)
+        if isinstance(body, dict) and not self.rigs:
+            body.pop("rigs", None)
+        return body
+
+    def rig(self, name: str) -> "Rig | None":
+        return next((r for r in self.rigs if r.name == name), None)
 
     def stressor(self, kind: str):
         return next((s for s in self.stressors if s.kind == kind), None)

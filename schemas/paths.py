@@ -63,6 +63,8 @@ PHYSICS_PLOT = "evaluations/{evaluation_id}/{plot}.png"
 # The camera-control evaluation of a world model (flows/camera_control.py): its table and report.
 CAMERA_RESULT = "evaluations/{evaluation_id}/camera.json"
 CAMERA_REPORT = "evaluations/{evaluation_id}/camera.md"
+RIG_RESULT = "evaluations/{evaluation_id}/rig.json"
+RIG_REPORT = "evaluations/{evaluation_id}/rig.md"
 # A camera video's tokenizer codes (a cache the train flow may delete and rebuild).
 EPISODE_CODES_FILE = "cache/episode_codes/{tokenizer_id:.12}/{video_sha256:.24}-{size}.npz"
 # ... and a continuous tokenizer's latents (the diffusion world model's post-training).

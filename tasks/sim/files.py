@@ -15,6 +15,7 @@ from schemas import paths
 from schemas.hashing import sha256_file, stable_id
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, MetricRecord, raw_video_id
 from tasks.mp4 import write_mp4
+from tasks.sim.rigs import tile
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,8 @@ def _atomic(path: Path, write) -> None:
 
 def write_episode(ep, root: Path, manifest_hash: str, index: int, crf: int = 20) -> EpisodeFiles:
     """Write one episode under EPISODE_DIR; meta.json is written last and marks it complete.
-    Every manifest camera's video is written: an episode rolled out recording fewer cameras
+    Every manifest camera's video is written, and each rig's tiled video (meta.json lists them
+    under ``rigs``, apart from ``cameras``): an episode rolled out recording fewer cameras
     (`rollout(..., record=...)`) is refused."""
     missing = [c.name for c in ep.manifest.cameras if c.name not in ep.frames]
     if missing:
@@ -68,12 +70,19 @@ def write_episode(ep, root: Path, manifest_hash: str, index: int, crf: int = 20)
     for camera, frames in ep.frames.items():
         fps = next(c.fps for c in ep.manifest.cameras if c.name == camera)
         videos[camera] = write_mp4(paths.resolve(root, paths.EPISODE_VIDEO, camera=camera, **fields), frames, fps, crf)
+    cameras = sorted(videos)
+    for rig in ep.manifest.rigs:  # every view of a rig together, as one video (tasks/sim/rigs.py)
+        fps = next(c.fps for c in ep.manifest.cameras if c.name == rig.cameras[0])
+        videos[rig.name] = write_mp4(paths.resolve(root, paths.EPISODE_VIDEO, camera=rig.name, **fields),
+                                     tile(ep.frames, rig.layout), fps, crf)
     table = paths.resolve(root, paths.EPISODE_TABLE, **fields)
     _atomic(table, lambda p: pq.write_table(_steps_table(ep), p, compression="zstd"))
     meta = paths.resolve(root, paths.EPISODE_META, **fields)
     body = {"manifest_hash": manifest_hash, "index": index, "seed": ep.seed, "success": bool(ep.success),
             "reason": ep.reason, "steps": ep.steps, "control_hz": ep.control_hz,
-            "stressors": ep.stressor_values, "cameras": sorted(videos), "task": ep.manifest.task.kind}
+            "stressors": ep.stressor_values, "cameras": cameras, "task": ep.manifest.task.kind}
+    if ep.manifest.rigs:
+        body["rigs"] = [rig.name for rig in ep.manifest.rigs]
     _atomic(meta, lambda p: p.write_text(json.dumps(body, sort_keys=True, indent=1, default=float)))
     return EpisodeFiles(index=index, seed=ep.seed, directory=directory, videos=videos, table=table, meta=meta,
                         success=bool(ep.success), reason=ep.reason, steps=ep.steps,
@@ -117,7 +126,7 @@ def read_episode(root: Path, digest: str, index: int) -> EpisodeFiles | None:
         return None
     body = json.loads(meta.read_text())
     videos = {c: paths.resolve(root, paths.EPISODE_VIDEO, manifest_hash=digest, index=index, camera=c)
-              for c in body["cameras"]}
+              for c in [*body["cameras"], *body.get("rigs", [])]}
     table = paths.resolve(root, paths.EPISODE_TABLE, manifest_hash=digest, index=index)
     if not table.is_file() or not all(v.is_file() for v in videos.values()):
         return None

@@ -77,8 +77,8 @@ def window_rows(windows: list[physics.Window], truths: dict[str, np.ndarray], po
 
 
 def paired_difference(rows: list[dict], horizon: int, source: str, other: str, draws: int = 2000,
-                      seed: int = 0) -> dict | None:
-    """Mean of ``source``'s minus ``other``'s rotation error over the windows both have at
+                      seed: int = 0, value: str = "rotation_deg") -> dict | None:
+    """Mean of ``source``'s minus ``other``'s ``value`` (rotation error) over the windows both have at
     ``horizon``, with a 95% bootstrap interval that resamples whole episodes (a window's key is
     ``episode@frame``; windows of one episode overlap, so they are not independent draws).
     None when no window has both."""
@@ -86,9 +86,9 @@ def paired_difference(rows: list[dict], horizon: int, source: str, other: str, d
     pairs: dict[str, dict] = defaultdict(dict)
     for r in rows:
         if r["horizon"] == horizon and r["source"] in (source, other):
-            pairs[r["window"]][r["source"]] = r["rotation_deg"]
+            pairs[r["window"]][r["source"]] = r[value]
     for window, got in pairs.items():
-        if source in got and other in got:
+        if source in got and other in got and not (math.isnan(got[source]) or math.isnan(got[other])):
             per_episode[window.rsplit("@", 1)[0]].append(got[source] - got[other])
     if not per_episode:
         return None

@@ -158,3 +158,25 @@ def test_waypoint_jitter_needs_waypoints():
     body = load(MANIFESTS / "mobile_rig_aisle.yaml").model_dump(mode="json")
     body["task"]["waypoint_jitter_m"] = 0.1
     assert _refusal(body).startswith("bad.yaml: task.waypoint_jitter_m: jitters the task's waypoints, and there are none")
+
+
+def test_a_rig_tiles_named_cameras_of_one_resolution_and_rate():
+    vehicle = ScenarioManifest.model_validate(VEHICLE)
+    rig = vehicle.rig("surround")
+    assert rig.layout == (("front", "right"), ("left", "rear")) and rig.cameras == ["front", "right", "left", "rear"]
+    assert vehicle.rig("roof") is None
+    # No rigs leaves the field out of the dump, so a manifest without one keeps its hash.
+    bare = {k: v for k, v in VEHICLE.items() if k != "rigs"}
+    assert "rigs" not in ScenarioManifest.model_validate(bare).model_dump(mode="json")
+
+
+@pytest.mark.parametrize("layout, said", [
+    ([["front", "right"], ["left"]], "rigs.0.layout: Value error, rows of [1, 2] cameras"),
+    ([["front", "front"]], "camera(s) front appear more than once"),
+    ([["front"]], "a rig tiles at least two cameras"),
+])
+def test_a_bad_rig_layout_is_refused_naming_the_field(layout, said):
+    body = copy.deepcopy(VEHICLE)
+    body["rigs"][0]["layout"] = layout
+    line = _refusal(body)
+    assert said in line, line
