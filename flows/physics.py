@@ -86,7 +86,7 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
                       for name in [primary.name, *others]}
         cameras = {c.name: PinholeCamera.from_manifest(c) for c in world}
         text = episode_text(scenario.task.instruction, [s.kind for s in scenario.stressors])
-        windows, memorising = predict_heldout(wm_folder, tok_folder, per_camera, cameras, size, text, context, horizon,
+        windows, memorising, per_frame = predict_heldout(wm_folder, tok_folder, per_camera, cameras, size, text, context, horizon,
                                           stride, move_threshold_cm / 100, shuffle_seed,
                                               evaluation.trained_folders(config, root),
                                           tok_id, root, sampler_steps)
@@ -100,7 +100,7 @@ def evaluate_physics(manifest: str, world_model: str | None = None, tokenizer: s
                   "psnr_between_floor_and_ceiling": physics.check_psnr_between(rows, every)}
         reported = sorted({r["horizon"] for r in rows if r["horizon"] % every == 0})
         sampson = evaluation.two_view_rows(windows, primary.name, cameras, reported)
-        counts = evaluation.window_counts(main, seeds)
+        counts = {**evaluation.window_counts(main, seeds), "rollout_s_per_frame": round(per_frame, 4)}
         body = report.report_body(rows, every, checks, counts, sampson, memorising)
         files = report.write_outputs(root, evaluation_id, rows, main, every, body)
         summary = {"run_id": run.run_id, "evaluation_id": evaluation_id, "world_model_id": wm_id,

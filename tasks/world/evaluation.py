@@ -4,6 +4,7 @@ a checkpoint trained on, the Sampson rows between cameras and the window counts.
 
 from __future__ import annotations
 
+import time
 from dataclasses import replace
 from pathlib import Path
 
@@ -44,12 +45,13 @@ def render_heldout(scenario, seed: int, camera: str, others: list[str]) -> dict[
 def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, list[tuple[int, heldout.Truth]]],
                     cameras: dict[str, PinholeCamera], size: int, text: str, context: int, horizon: int, stride: int,
                     move_m: float, shuffle_seed: int, trained: list[Path], tokenizer_id: str, root: Path,
-                    sampler_steps: int = 8) -> tuple[dict[str, list[physics.Window]], dict]:
+                    sampler_steps: int = 8) -> tuple[dict[str, list[physics.Window]], dict, float | None]:
     """Windows per camera: encode, fit colours (primary camera), roll out with true and shuffled
     actions. And teacher-forced next-frame scores on the primary camera's held-out episodes
     beside as many of the episodes the model trained on (``trained``, that camera): an
     autoregressive model's only (next-code accuracy has no diffusion counterpart here; a
-    diffusion model samples with ``sampler_steps`` Euler steps)."""
+    diffusion model samples with ``sampler_steps`` Euler steps). And the primary camera's rollout
+    time per generated video frame (decoding included)."""
     import torch
 
     torch.set_num_threads(min(2, torch.get_num_threads()))
@@ -61,13 +63,17 @@ def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, lis
                          f"{'a continuous' if diffusion else 'a discrete'} one's {'latents' if diffusion else 'codes'}")
     if not model.config.action_conditioned:
         raise ValueError(f"{wm_folder}: not post-trained with actions; give a post-trained world model")
-    out, memorising = {}, {}
+    out, memorising, per_frame = {}, {}, None
     for name, truths in per_camera.items():
         prepared = [heldout.prepare(f"seed{seed}", t, cameras[name], tokenizer, size, model.config.action_dim, text,
                                     totals=model.config.action_totals)
                     for seed, t in truths]
+        started = time.perf_counter()
         out[name] = heldout.predict(model, tokenizer, prepared, context, horizon, stride, move_m, shuffle_seed,
                                     sampler_steps=sampler_steps)
+        if per_frame is None:  # per generated video frame, decoding included: true and shuffled actions
+            t = tokenizer.config.temporal_compression
+            per_frame = (time.perf_counter() - started) / max(1, 2 * len(out[name]) * t * horizon)
         if not memorising and not diffusion:  # the primary camera comes first
             held = [CodeSequence(p.key, p.codes, p.text, p.actions) for p in prepared]
             window = window_length(held, model.config.max_frames)
@@ -76,7 +82,7 @@ def predict_heldout(wm_folder: Path, tok_folder: Path, per_camera: dict[str, lis
                                       text, tokenizer_id, root, model.config.action_totals)
             if any(s.frames >= window for s in seen):
                 memorising["trained"] = teacher_forced(model, seen, window, stride)
-    return out, memorising
+    return out, memorising, per_frame
 
 
 def two_view_rows(windows: dict[str, list[physics.Window]], primary: str, cameras: dict[str, PinholeCamera],

@@ -40,7 +40,9 @@ def report_body(rows: list[dict], every: int, checks: dict, counts: dict, sampso
                             + [fmt(by[h, m]["iou"], 3) for m in ms] + [by[h, "model"]["tracked"]] for h in hs])
     text = (f"{counts['episodes']} held-out episodes (seeds {counts['seeds']}), {counts['windows']} windows, "
             f"{counts['moving']} where the package moves, {counts['tracked']} of those tracked by colour"
-            + (f"; not tracked: {counts['untracked']}" if counts["untracked"] else "") + "\n\n"
+            + (f"; not tracked: {counts['untracked']}" if counts["untracked"] else "")
+            + (f"; {counts['rollout_s_per_frame']:.4f} s of rollout per generated frame (decoding included)"
+               if counts.get("rollout_s_per_frame") is not None else "") + "\n\n"
             f"### image similarity (all windows)\n\n{image}\n\n"
             f"### package position (windows where it moves)\n\n{where}\n\n### checks\n\n"
             + markdown_table(("check", "passed", "detail"),

@@ -87,6 +87,7 @@ def test_physics_flow_writes_table_plots_and_lineage(prefect_harness, data_root,
     wm_folder, tok_folder = models
     result = evaluate_physics(str(path), str(wm_folder), str(tok_folder), episodes=1, horizon=2)
     assert result["episodes"] == 1 and result["context"] == 6 and result["windows"] == 6  # 19 latent frames, stride 2
+    assert result["rollout_s_per_frame"] > 0  # the cost of a generated frame, beside the figures
     folder = data_root / "evaluations" / result["evaluation_id"]
     body = json.loads((folder / "physics.json").read_text())
     rows = body["rows"]
@@ -186,6 +187,7 @@ def test_physics_flow_evaluates_a_diffusion_world_model(prefect_harness, data_ro
     wm_folder, tok_folder = diffusion_models
     result = evaluate_physics(str(path), str(wm_folder), str(tok_folder), episodes=1, horizon=2, sampler_steps=2)
     assert result["episodes"] == 1 and result["context"] == 6 and result["windows"] == 6
+    assert result["rollout_s_per_frame"] > 0
     folder = data_root / "evaluations" / result["evaluation_id"]
     body = json.loads((folder / "physics.json").read_text())
     assert {(r["horizon"], r["method"]) for r in body["rows"]} == {(h, m) for h in range(1, 9)
