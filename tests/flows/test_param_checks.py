@@ -21,10 +21,12 @@ from flows.params import ParamsError, Refused
 from flows.params_data import CorpusParams, CurateParams, RegisterParams, SimulateParams
 from flows.params_policy import EvaluateParams, LoopParams, PanelsParams, TrainPolicyParams
 from flows.params_transfer import TrainTransferParams, TransferParams
-from flows.params_world import PhysicsParams, TokenizeParams, TrainParams
+from flows.camera_control import evaluate_camera
+from flows.params_world import CameraParams, PhysicsParams, RigParams, TokenizeParams, TrainParams
 from flows.physics import evaluate_physics
 from flows.policy import train_policy
 from flows.register import register
+from flows.rig import evaluate_rig
 from flows.simulate import simulate
 from flows.tokenize import tokenize
 from flows.train import train
@@ -40,7 +42,8 @@ BASE = str(MANIFESTS / "mobile_rig_aisle.yaml")  # a mobile base: no arm
 MODELS = [(register, RegisterParams), (simulate, SimulateParams), (corpus, CorpusParams), (curate, CurateParams),
           (tokenize, TokenizeParams), (train, TrainParams), (evaluate_physics, PhysicsParams), (panels, PanelsParams),
           (evaluate, EvaluateParams), (train_policy, TrainPolicyParams), (loop, LoopParams),
-          (train_transfer, TrainTransferParams), (transfer, TransferParams)]
+          (train_transfer, TrainTransferParams), (transfer, TransferParams), (evaluate_camera, CameraParams),
+          (evaluate_rig, RigParams)]
 
 # (flow, the parameters a deployment passes, the same value on the command line, what both say;
 # a pair where the CLI names the option and the flow the parameter)
@@ -171,6 +174,17 @@ def test_a_tokenizer_of_the_other_variant_is_refused_for_each_family(data_root, 
         train.fn(manifest=PUSH, family="diffusion", preset_name="tiny-dwm", tokenizer=discrete)
     assert "\n" not in str(refused.value)
     assert not (data_root / "lineage.duckdb").exists()
+
+
+def test_train_takes_a_rig_as_its_camera_and_names_the_rigs_when_refusing(tmp_path):
+    import json
+
+    (tmp_path / "meta.json").write_text(json.dumps({"cameras": ["front", "left"], "rigs": ["surround"]}))
+    TrainParams.of({"manifest": PUSH, "camera": "surround"}).check_episodes(tmp_path)  # the rig's tiled video
+    with pytest.raises(Refused) as refused:
+        TrainParams.of({"manifest": PUSH, "camera": "roof"}).check_episodes(tmp_path)
+    said = refused.value.named(TrainParams.labels(True))
+    assert "--camera 'roof': the episodes of" in said and said.endswith("have cameras front, left and rigs surround")
 
 
 def test_train_checks_its_episodes_in_the_flow_as_in_the_cli():
