@@ -61,6 +61,11 @@ def render_heldout(manifest: ScenarioManifest, seed: int, rig_name: str) -> RigT
                          "the vehicle; the rig's ego-motion needs cameras that move with it")
     if manifest.stressor("camera_jitter"):
         raise ValueError(f"manifest {manifest.name}: camera jitter moves the picture at render time, not the camera")
+    width, height = cams[rig.cameras[0]].resolution
+    width, height = width * len(rig.layout[0]), height * len(rig.layout)
+    if width != height:
+        raise ValueError(f"manifest {manifest.name}: rig {rig_name!r} tiles to {width}x{height}; a world model sees "
+                         "square pictures (frames are centre-cropped to a square), so its views would be cut")
     poses: dict[str, list[PinholeCamera]] = {n: [] for n in rig.cameras}
     depths: dict[str, list[np.ndarray]] = {n: [] for n in rig.cameras}
 

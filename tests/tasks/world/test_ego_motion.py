@@ -74,3 +74,14 @@ def test_window_rows_score_every_source_and_copy_last_misses_by_the_whole_motion
     assert {r["pair"] for r in views} == {"front-right", "front-left", "right-rear", "left-rear"}
     check = rig_views.check_beats_copy_last(rig_views.ego_table(rows), rows)
     assert check["passed"] and check["model_minus_floor_cm"]["4"]["mean"] < 0
+
+
+def test_a_rig_that_does_not_tile_to_a_square_is_refused_before_anything_is_rendered():
+    from schemas.manifest import Rig
+
+    manifest = load(MANIFESTS / "vehicle_multiview.yaml")
+    strip = manifest.model_copy(update={"rigs": (Rig(name="strip", layout=(("front", "right", "rear", "left"),)),)})
+    with pytest.raises(ValueError, match="rig 'strip' tiles to 256x64; a world model sees square pictures"):
+        rig_views.render_heldout(strip, 10_000, "strip")
+    with pytest.raises(ValueError, match="no rig 'roof'"):
+        rig_views.render_heldout(manifest, 10_000, "roof")
