@@ -112,22 +112,29 @@ def track(frames: list[np.ndarray], fb_px: float = 0.25) -> tuple[np.ndarray, np
     return pa, pb
 
 
-def estimate(reference: dict[str, np.ndarray], later: dict[str, np.ndarray], cameras: dict[str, PinholeCamera],
-             depths: dict[str, np.ndarray], via: list[dict[str, np.ndarray]] = ()) -> PlanarMotion | None:
-    """The rig's motion from the reference instant to a later one: per view, corners of its
-    reference frame (RGB uint8) tracked into its later frame (through the frames of ``via``, in
-    order, when given: hops of a few frames keep a long motion trackable), lifted to 3D with the
-    reference's depth and the view's camera at the reference (sized as the frames), then `fit`
-    over all views."""
-    views = []
+def correspondences(reference: dict[str, np.ndarray], later: dict[str, np.ndarray],
+                    cameras: dict[str, PinholeCamera], depths: dict[str, np.ndarray],
+                    via: list[dict[str, np.ndarray]] = ()) -> dict[str, tuple[PinholeCamera, np.ndarray, np.ndarray]]:
+    """Per view: corners of its reference frame (RGB uint8) tracked into its later frame (through
+    the frames of ``via``, in order, when given: hops of a few frames keep a long motion
+    trackable), lifted to 3D with the reference's depth; (the view's camera at the reference,
+    sized as the frames, world points ``N x 3``, their pixels ``N x 2`` in the later frame)."""
+    views = {}
     for name, before in reference.items():
         pa, pb = track([before, *(v[name] for v in via), later[name]])
         if not len(pa):
             continue
         xyz, d = backproject(cameras[name], pa, depths[name])
         keep = (d > MIN_DEPTH_M) & (d < MAX_DEPTH_M)
-        views.append((cameras[name], xyz[keep], pb[keep]))
-    return fit(views)
+        views[name] = (cameras[name], xyz[keep], pb[keep])
+    return views
+
+
+def estimate(reference: dict[str, np.ndarray], later: dict[str, np.ndarray], cameras: dict[str, PinholeCamera],
+             depths: dict[str, np.ndarray], via: list[dict[str, np.ndarray]] = ()) -> PlanarMotion | None:
+    """The rig's motion from the reference instant to a later one: `fit` over every view's
+    `correspondences`."""
+    return fit(list(correspondences(reference, later, cameras, depths, via).values()))
 
 
 def error_cm(estimated: PlanarMotion | None, truth: PlanarMotion, centre: np.ndarray) -> tuple[float, float]:

@@ -123,10 +123,11 @@ def window_rows(windows: list[physics.Window], truths: dict[str, RigTruth], hori
             for source in SOURCES:
                 later = untile(clips[source][h - 1], rig.layout)
                 via = [untile(clips[source][g - 1], rig.layout) for g in hops]
-                joint = ego_motion.estimate(reference[source], later, cams, depths, via)
+                # Tracked once per view: the joint fit and each view's own fit share the points.
+                points = ego_motion.correspondences(reference[source], later, cams, depths, via)
+                joint = ego_motion.fit(list(points.values()))
                 cm, yaw = ego_motion.error_cm(joint, truth, centre)
-                own = {n: ego_motion.estimate({n: reference[source][n]}, {n: later[n]}, {n: cams[n]},
-                                              {n: depths[n]}, [{n: v[n]} for v in via]) for n in names}
+                own = {n: ego_motion.fit([points[n]]) if n in points else None for n in names}
                 agree = {f"{a}-{b}": (100.0 * float(np.linalg.norm(own[a].apply(centre) - own[b].apply(centre)))
                                       if own[a] is not None and own[b] is not None else math.nan) for a, b in pairs}
                 rows.append({"window": w.key, "horizon": h, "source": source, "ego_cm": cm, "yaw_deg": yaw,
