@@ -4,8 +4,8 @@ generated together), against the simulator on held-out seeds (issue 33 point 4).
 held-out seeds (their own jittered trajectories) -> rollout of the rig's cameras with each view's
 pose and depth -> the tiled frames' codes and reconstruction -> world-model rollouts from every
 window with the commanded and with shuffled actions -> per horizon and source: the rig's
-ego-motion from all views (metric, cm) against the simulator's, each pair of neighbouring views'
-agreement and Sampson error -> tables, check, lineage.
+ego-motion from all views (metric, cm) against the simulator's and the commanded motion, each pair
+of neighbouring views' agreement and Sampson error -> tables, check, lineage.
 """
 
 from __future__ import annotations
@@ -105,8 +105,9 @@ def evaluate_rig(manifest: str, world_model: str | None = None, tokenizer: str |
                    "checks": {"beats_copy_last": check["passed"]}, **counts, "context": context, "horizon": horizon}
         files["result"].write_text(json.dumps({"summary": summary, "params": params, "ego": ego, "views": views,
                                                "check": check, "rows": rows}, indent=1, default=float))
-        metrics = [(f"rig/{r['source']}/ego_error_cm/h{r['horizon']}", r["ego_mean_cm"])
-                   for r in ego if r["ego_mean_cm"] is not None]
+        metrics = [(f"rig/{r['source']}/{label}/h{r['horizon']}", r[key]) for r in ego
+                   for label, key in (("ego_error_cm", "ego_mean_cm"), ("command_error_cm", "command_mean_cm"))
+                   if r[key] is not None]
         metrics.append(("rig/check/beats_copy_last", float(check["passed"])))
         stage.finish(len(seeds), 1, report.evaluation_lineage(
             root, evaluation_id, files, stage.id, wm_id, tok_id, run.manifest_hash,

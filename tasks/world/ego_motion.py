@@ -58,6 +58,21 @@ def true_motion(before: PinholeCamera, after: PinholeCamera) -> PlanarMotion:
     return PlanarMotion(float(after.position[0] - moved[0]), float(after.position[1] - moved[1]), yaw)
 
 
+def commanded_motion(step_time: np.ndarray, action: np.ndarray, t0: float, t1: float,
+                     centre: np.ndarray) -> PlanarMotion:
+    """The planar motion the actions command between instants ``t0`` and ``t1`` (s): control step
+    k holds ``action[k]`` from ``step_time[k]`` to the next step's start; its first two values
+    are the base's velocity in the world frame (m/s) and a third, where there is one, its yaw
+    rate (rad/s), about ``centre``, the rig's centre at ``t0``."""
+    step_time, action = np.asarray(step_time, float), np.asarray(action, float)
+    ends = np.append(step_time[1:], np.inf)
+    held = np.clip(np.minimum(ends, t1) - np.maximum(step_time, t0), 0.0, None)
+    dx, dy = held @ action[:, 0], held @ action[:, 1]
+    yaw = float(held @ action[:, 2]) if action.shape[1] > 2 else 0.0
+    turned = PlanarMotion(0.0, 0.0, yaw).apply(centre)
+    return PlanarMotion(float(centre[0] + dx - turned[0]), float(centre[1] + dy - turned[1]), yaw)
+
+
 def backproject(camera: PinholeCamera, pixels: np.ndarray, depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Pixels ``N x 2`` of a frame whose depth map (m along the optical axis, ``H x W``) is known
     -> world points ``N x 3`` and each pixel's depth (nearest depth sample)."""

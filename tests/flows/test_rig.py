@@ -86,9 +86,12 @@ def test_rig_flow_writes_its_tables_check_and_lineage(prefect_harness, data_root
         floor = by[(h, "floor")]  # copy-last shows no motion: its error is the whole motion
         assert floor["ego_mean_cm"] == pytest.approx(floor["true_mean_cm"], abs=0.5) and floor["true_mean_cm"] > 5
         assert by[(h, "simulator")]["ego_mean_cm"] < 0.5 * floor["true_mean_cm"]
+        # Against the commanded motion too; the simulator drives it to within a few cm.
+        assert floor["command_mean_cm"] > 0.7 * floor["true_mean_cm"]
+        assert by[(h, "simulator")]["driven_vs_command_cm"] < 0.2 * floor["true_mean_cm"]
     assert {r["pair"] for r in body["views"]} == {"front-right", "front-left", "right-rear", "left-rear"}
     assert result["checks"] == {"beats_copy_last": body["check"]["passed"]}
-    assert "| 8 | floor |" in (folder / "rig.md").read_text()
+    assert "| 8 | floor |" in (folder / "rig.md").read_text() and "from the command" in (folder / "rig.md").read_text()
 
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         _, edges = wh.query("SELECT e.relation, p.kind FROM edges e LEFT JOIN artifacts p "
@@ -96,7 +99,8 @@ def test_rig_flow_writes_its_tables_check_and_lineage(prefect_harness, data_root
                             {"id": result["evaluation_id"]})
         _, names = wh.query("SELECT name FROM metrics WHERE subject_id = $id", {"id": result["evaluation_id"]})
     assert edges == [("decoded_by", "checkpoint"), ("evaluated", "checkpoint"), ("evaluated_on", "manifest")]
-    assert {"rig/model/ego_error_cm/h4", "rig/floor/ego_error_cm/h8", "rig/check/beats_copy_last"} <= \
+    assert {"rig/model/ego_error_cm/h4", "rig/floor/ego_error_cm/h8", "rig/model/command_error_cm/h4",
+            "rig/check/beats_copy_last"} <= \
         {n for (n,) in names}
     assert lineage_problems(Settings().warehouse_path) == {}
 
