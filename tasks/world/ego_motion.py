@@ -107,42 +107,61 @@ def fit(views: list[tuple[PinholeCamera, np.ndarray, np.ndarray]], scale_px: flo
     return PlanarMotion(*map(float, best.x), points=int(sum(len(x) for _, x, _ in views)))
 
 
-def track(frames: list[np.ndarray], fb_px: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
-    """Corners of ``frames[0]`` followed hop by hop to ``frames[-1]`` (pyramidal Lucas-Kanade, each
-    hop checked forward and backward as `klt_matches` does): pixel coordinates ``N x 2`` in the
-    first and in the last frame of the corners that survive every hop."""
+def track_hops(frames: list[np.ndarray], fb_px: float = 0.25) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Corners of ``frames[0]`` followed hop by hop through the later frames (pyramidal
+    Lucas-Kanade, each hop checked forward and backward as `klt_matches` does): per later frame,
+    pixel coordinates ``N x 2`` in the first frame and in that frame of the corners that survive
+    every hop up to it."""
     pa, pb = klt_matches(frames[0], frames[1])
+    hops = [(pa, pb)]
     for before, after in zip(frames[1:-1], frames[2:]):
-        if not len(pb):
-            break
-        scale = max(1.0, MIN_SIDE / min(before.shape[:2]))
-        ga, gb = _grey(before, scale), _grey(after, scale)
-        start = ((pb + 0.5) * scale - 0.5).astype(np.float32).reshape(-1, 1, 2)
-        lk = dict(winSize=(21, 21), maxLevel=3, criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
-        moved, ok, _ = cv2.calcOpticalFlowPyrLK(ga, gb, start, None, **lk)
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(gb, ga, moved, None, **lk)
-        returned = np.linalg.norm(back - start, axis=2).ravel() < fb_px * scale
-        good = (ok.ravel() == 1) & (ok_back.ravel() == 1) & returned
-        pa, pb = pa[good], (moved.reshape(-1, 2)[good] + 0.5) / scale - 0.5
-    return pa, pb
+        if len(pb):
+            scale = max(1.0, MIN_SIDE / min(before.shape[:2]))
+            ga, gb = _grey(before, scale), _grey(after, scale)
+            start = ((pb + 0.5) * scale - 0.5).astype(np.float32).reshape(-1, 1, 2)
+            lk = dict(winSize=(21, 21), maxLevel=3,
+                      criteria=(cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+            moved, ok, _ = cv2.calcOpticalFlowPyrLK(ga, gb, start, None, **lk)
+            back, ok_back, _ = cv2.calcOpticalFlowPyrLK(gb, ga, moved, None, **lk)
+            returned = np.linalg.norm(back - start, axis=2).ravel() < fb_px * scale
+            good = (ok.ravel() == 1) & (ok_back.ravel() == 1) & returned
+            pa, pb = pa[good], (moved.reshape(-1, 2)[good] + 0.5) / scale - 0.5
+        hops.append((pa, pb))
+    return hops
+
+
+def track(frames: list[np.ndarray], fb_px: float = 0.25) -> tuple[np.ndarray, np.ndarray]:
+    """The corners of ``frames[0]`` that `track_hops` follows all the way to ``frames[-1]``: their
+    pixel coordinates ``N x 2`` in the first and in the last frame."""
+    return track_hops(frames, fb_px)[-1]
+
+
+Tracked = dict[str, tuple[PinholeCamera, np.ndarray, np.ndarray]]  # per view: camera, world points, later pixels
+
+
+def correspondences_through(reference: dict[str, np.ndarray], laters: list[dict[str, np.ndarray]],
+                            cameras: dict[str, PinholeCamera], depths: dict[str, np.ndarray]) -> list[Tracked]:
+    """Per later instant, in order (each tracked through the ones before it: hops of a few frames
+    keep a long motion trackable, and each hop is tracked once for all the instants after it),
+    per view: corners of its reference frame (RGB uint8) lifted to 3D with the reference's depth;
+    (the view's camera at the reference, sized as the frames, world points ``N x 3``, their pixels
+    ``N x 2`` in that later frame)."""
+    out: list[Tracked] = [{} for _ in laters]
+    for name, before in (reference.items() if laters else ()):
+        for k, (pa, pb) in enumerate(track_hops([before, *(v[name] for v in laters)])):
+            if not len(pa):
+                continue
+            xyz, d = backproject(cameras[name], pa, depths[name])
+            keep = (d > MIN_DEPTH_M) & (d < MAX_DEPTH_M)
+            out[k][name] = (cameras[name], xyz[keep], pb[keep])
+    return out
 
 
 def correspondences(reference: dict[str, np.ndarray], later: dict[str, np.ndarray],
                     cameras: dict[str, PinholeCamera], depths: dict[str, np.ndarray],
-                    via: list[dict[str, np.ndarray]] = ()) -> dict[str, tuple[PinholeCamera, np.ndarray, np.ndarray]]:
-    """Per view: corners of its reference frame (RGB uint8) tracked into its later frame (through
-    the frames of ``via``, in order, when given: hops of a few frames keep a long motion
-    trackable), lifted to 3D with the reference's depth; (the view's camera at the reference,
-    sized as the frames, world points ``N x 3``, their pixels ``N x 2`` in the later frame)."""
-    views = {}
-    for name, before in reference.items():
-        pa, pb = track([before, *(v[name] for v in via), later[name]])
-        if not len(pa):
-            continue
-        xyz, d = backproject(cameras[name], pa, depths[name])
-        keep = (d > MIN_DEPTH_M) & (d < MAX_DEPTH_M)
-        views[name] = (cameras[name], xyz[keep], pb[keep])
-    return views
+                    via: list[dict[str, np.ndarray]] = ()) -> Tracked:
+    """`correspondences_through` into ``later`` alone, through the frames of ``via``."""
+    return correspondences_through(reference, [*via, later], cameras, depths)[-1]
 
 
 def estimate(reference: dict[str, np.ndarray], later: dict[str, np.ndarray], cameras: dict[str, PinholeCamera],

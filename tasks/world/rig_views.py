@@ -115,22 +115,21 @@ def window_rows(windows: list[physics.Window], truths: dict[str, RigTruth], hori
         reference = {"simulator": untile(square(rig.truth.frames[last:last + 1], w.true.shape[1])[0],
                                          rig.layout),
                      **{s: untile(w.context_last, rig.layout) for s in SOURCES[1:]}}
-        for h in horizons:
-            if h > len(w.true):
-                continue
+        fps = rig.truth.fps
+        reached = [h for h in horizons if h <= len(w.true)]
+        clips = {"simulator": w.true, **{s: w.frames(s) for s in SOURCES[1:]}}
+        views = {s: [untile(clips[s][h - 1], rig.layout) for h in reached] for s in SOURCES}
+        # Per source, every view's corners tracked once through the horizons' frames in order
+        # (each horizon's through the earlier ones'), shared by the joint fit and each view's own.
+        tracked = {s: ego_motion.correspondences_through(reference[s], views[s], cams, depths) for s in SOURCES}
+        for i, h in enumerate(reached):
             truth = ego_motion.true_motion(rig.poses[names[0]][last], rig.poses[names[0]][last + h])
-            fps = rig.truth.fps
             command = ego_motion.commanded_motion(rig.truth.step_time, rig.truth.action, last / fps,
                                                   (last + h) / fps, centre)
             driven_cm = ego_motion.error_cm(truth, command, centre)[0]
             later_cams = {n: scaled(rig.poses[n][last + h], side) for n in names}
-            hops = [g for g in horizons if g < h]  # tracked through the earlier horizons' frames
-            clips = {"simulator": w.true, **{s: w.frames(s) for s in SOURCES[1:]}}
             for source in SOURCES:
-                later = untile(clips[source][h - 1], rig.layout)
-                via = [untile(clips[source][g - 1], rig.layout) for g in hops]
-                # Tracked once per view: the joint fit and each view's own fit share the points.
-                points = ego_motion.correspondences(reference[source], later, cams, depths, via)
+                later, points = views[source][i], tracked[source][i]
                 joint = ego_motion.fit(list(points.values()))
                 cm, yaw = ego_motion.error_cm(joint, truth, centre)
                 own = {n: ego_motion.fit([points[n]]) if n in points else None for n in names}
