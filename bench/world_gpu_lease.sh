@@ -16,7 +16,7 @@ set -u
 [ $# -ge 1 ] || { echo "usage: world_gpu_lease.sh 'name=N key=value ...' ..." >&2; exit 2; }
 OUT=${OUT:-/tmp/world_gpu_out}
 WORK=${WORK:-/tmp/wg}  # where the variants are trained
-mkdir -p "$OUT"
+mkdir -p "$OUT" "$WORK"
 PY=${PYTHON:-python3}  # PYTHON=.venv/bin/python DEVICE=cpu tries it here, without the wheels
 DEVICE=${DEVICE:-cuda}
 if [ -d bench/out/gpu/whl ] && [ -z "${PYTHON:-}" ]; then
@@ -29,6 +29,7 @@ export PYTHONUNBUFFERED=1
 if ! $PY -c 'import av' 2>/dev/null; then
     mkdir -p /tmp/site/av
     printf 'def __getattr__(name):\n    raise ImportError("PyAV is not installed here")\n' > /tmp/site/av/__init__.py
+    case ":${PYTHONPATH:-}:" in *:/tmp/site:*) ;; *) export PYTHONPATH=/tmp/site${PYTHONPATH:+:$PYTHONPATH} ;; esac
 fi
 command -v nvidia-smi >/dev/null && nvidia-smi --query-gpu=name,memory.total --format=csv,noheader
 $PY -c "import torch, tasks.manifests, tasks.world.phases
@@ -39,13 +40,16 @@ date -u +%T
 compile=--compile; [ "$DEVICE" = cpu ] && compile=
 $PY bench/world_gpu.py train "${BUNDLE:-bench/out/gpu/bundle.pt}" --out "$WORK" --device "$DEVICE" $compile \
     --threads 2 "${variants[@]}" 2>&1 | grep -v -i warn | tee "$OUT/log.txt"
+trained=${PIPESTATUS[0]}
 date -u +%T
 cd "$WORK" || exit 5
-for spec in "$@"; do
+for spec in "$@"; do  # every variant that finished, also when another failed
     name=$(echo "$spec" | tr ' ' '\n' | sed -n 's/^name=//p')
+    [ -f "$name/result.json" ] || { echo "$name: not finished, nothing to return" >&2; continue; }
     tar cf - "$name/posttrain/config.json" "$name/posttrain/model.safetensors" "$name/result.json" > "$OUT/$name.tar"
     if [ "$(stat -c %s "$OUT/$name.tar")" -gt 15728640 ]; then
         split -b 15m "$OUT/$name.tar" "$OUT/$name.tar." && rm "$OUT/$name.tar"
     fi
 done
 ls -la "$OUT"
+exit "$trained"

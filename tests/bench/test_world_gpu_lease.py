@@ -54,3 +54,13 @@ def test_variants_come_back_as_loadable_checkpoints(tmp_path):
 def test_a_call_without_variants_is_refused():
     run = subprocess.run(["bash", "bench/world_gpu_lease.sh"], cwd=REPO, capture_output=True, text=True, timeout=60)
     assert run.returncode == 2 and "usage" in run.stderr
+
+
+def test_a_failed_training_fails_the_call_and_returns_nothing(tmp_path):
+    _bundle(tmp_path / "bundle.pt")
+    env = {**os.environ, "PYTHON": sys.executable, "DEVICE": "cpu", "BUNDLE": str(tmp_path / "bundle.pt"),
+           "OUT": str(tmp_path / "out"), "WORK": str(tmp_path / "work"), "OMP_NUM_THREADS": "1"}
+    run = subprocess.run(["bash", "bench/world_gpu_lease.sh", "name=a preset=tiny-wm bogus=1"], cwd=REPO, env=env,
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode != 0 and "unknown key 'bogus'" in run.stdout + run.stderr
+    assert "a: not finished" in run.stderr and not (tmp_path / "out" / "a.tar").exists()
