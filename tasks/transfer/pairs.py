@@ -135,11 +135,11 @@ def make_pairs(parent: ScenarioManifest, seeds: list[int] | tuple[int, ...], pro
     if horizon_s is not None:
         parent = parent.model_copy(update={"horizon_s": horizon_s})
     camera = primary_camera(parent, camera)
-    source = source_manifest(parent)
+    source_look = source_manifest(parent)
     pairs: list[PairClip] = []
     for seed in seeds:
         recorder = Recorder()
-        nominal = rollout(source, seed, on_frame=recorder)
+        nominal = rollout(source_look, seed, on_frame=recorder)
         rendered = recorder.rendered()
         source = camera_clip(nominal.frames[camera], size, camera, seed, rendered.depth_mm[camera],
                              rendered.ids[camera], rendered.legend)

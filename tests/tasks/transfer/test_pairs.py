@@ -81,3 +81,10 @@ def test_manifests_keep_all_but_the_look():
 def test_seg_classes_group_the_legend():
     legend = ("background", "package", "bin", "robot", "distractor_0")
     assert seg_classes(np.arange(5, dtype=np.uint8), legend).tolist() == [0, 1, 3, 2, SEG_CLASSES - 1]
+
+
+def test_several_seeds_each_get_their_own_pairs():
+    pairs = make_pairs(load_manifest(MANIFESTS / "push_closeup.yaml"), [21, 22], prompts=("nominal", "dim"),
+                       horizon_s=0.3)
+    assert [(p.seed, p.prompt) for p in pairs] == [(21, "nominal"), (21, "dim"), (22, "nominal"), (22, "dim")]
+    assert not np.array_equal(pairs[0].frames, pairs[2].frames)  # the seeds place the package differently
