@@ -52,6 +52,9 @@ class TransferConfig(BaseModel):
     channels: tuple[int, ...] = Field((32, 64, 128), min_length=1, description="width per resolution level, finest first")
     groups: int = Field(8, ge=1, description="GroupNorm groups (every width must divide by it)")
     reference: bool = Field(False, description="also conditioned on a reference clip's colour statistics")
+    head: Literal["direct", "affine"] = Field(
+        "direct", description="direct: the net paints the frame; affine: it predicts a per-pixel gain and offset "
+        "applied to the (weighted) 'frame' control, so the source's edges pass through unless the net moves them")
 
     @model_validator(mode="after")
     def _consistent(self) -> "TransferConfig":
@@ -59,6 +62,8 @@ class TransferConfig(BaseModel):
             raise ValueError(f"controls repeat: {self.controls}")
         if any(w % self.groups for w in self.channels):
             raise ValueError(f"every width in {self.channels} must divide by groups={self.groups}")
+        if self.head == "affine" and "frame" not in self.controls:
+            raise ValueError("head 'affine' transforms the source's frame: controls must include 'frame'")
         return self
 
     def channels_of(self, control: str) -> int:
@@ -143,7 +148,12 @@ class TransferNet(nn.Module):
             self.lift.append(nn.Conv2d(c.channels[i + 1], c.channels[i], 3, padding=1))
             self.up.append(FiLMBlock(2 * c.channels[i], c.channels[i], c.prompt_dim, c.groups))
         self.norm_out = nn.GroupNorm(c.groups, c.channels[0])
-        self.conv_out = nn.Conv2d(c.channels[0], 3, 3, padding=1)
+        self.conv_out = nn.Conv2d(c.channels[0], 6 if c.head == "affine" else 3, 3, padding=1)
+        if c.head == "affine":  # starts as the identity on the frame control: gain 1, offset 0
+            nn.init.zeros_(self.conv_out.weight)
+            nn.init.zeros_(self.conv_out.bias)
+            start = sum(c.channels_of(name) for name in c.controls[:c.controls.index("frame")])
+            self._frame = slice(start, start + 3)
         # Per-channel index of the control it belongs to, to spread control weights over channels.
         owner = [i for i, name in enumerate(c.controls) for _ in range(c.channels_of(name))]
         self.register_buffer("_owner", torch.tensor(owner, dtype=torch.long), persistent=False)
@@ -190,7 +200,16 @@ class TransferNet(nn.Module):
         for lift, block in zip(self.lift, self.up):
             h = lift(nn.functional.interpolate(h, scale_factor=2.0, mode="nearest"))
             h = block(torch.cat([h, skips.pop()], 1), p)
-        return torch.tanh(self.conv_out(nn.functional.silu(self.norm_out(h))))
+        out = self.conv_out(nn.functional.silu(self.norm_out(h)))
+        if self.config.head == "direct":
+            return torch.tanh(out)
+        gain, offset = out.split(3, 1)
+        # In [0, 1] pixel units: the frame's weight scales the source pixel (0: the offset alone).
+        frame01 = (controls[:, self._frame] + 1) / 2
+        if weights is not None:
+            w = weights.to(frame01)[:, self.config.controls.index("frame")].unsqueeze(1)
+            frame01 = frame01 * w.reshape(*w.shape, *([1] * (frame01.dim() - w.dim())))
+        return ((1 + gain) * frame01 + offset).clamp(0, 1) * 2 - 1
 
     def forward(self, controls: torch.Tensor, prompts: torch.Tensor, weights: torch.Tensor | None = None,
                 previous: torch.Tensor | None = None, reference: torch.Tensor | None = None) -> torch.Tensor:
@@ -232,6 +251,9 @@ PRESETS: dict[str, TransferConfig] = {
     # small-ref that also sees the source look's own frame (the "frame" control).
     "small-frame": TransferConfig(name="small-frame", controls=ALL_CONTROLS, channels=(16, 32, 64), prompt_dim=32,
                                   groups=8, reference=True),
+    # small-frame whose output is a per-pixel gain and offset of the source's frame (head "affine").
+    "small-affine": TransferConfig(name="small-affine", controls=ALL_CONTROLS, channels=(16, 32, 64), prompt_dim=32,
+                                   groups=8, reference=True, head="affine"),
 }
 
 

@@ -158,3 +158,34 @@ def test_a_reference_clip_moves_the_output_and_a_missing_one_is_the_prompt_alone
     with pytest.raises(ValueError, match="not trained with reference clips"):
         _model()(x, prompts, reference=warm)
     assert TransferConfig.model_validate({"name": "old", "channels": [8, 16], "groups": 4}).reference is False
+
+
+def _affine(seed=0):
+    config = preset("tiny").model_copy(update={"controls": ("edges", "frame"), "head": "affine"})
+    torch.manual_seed(seed)
+    return TransferNet(config).eval()
+
+
+def test_the_affine_head_starts_as_the_source_frame_and_its_weight_scales_the_frame():
+    model = _affine()
+    x, prompts = _controls(model), torch.tensor([0, 3])
+    frame = x[:, _channels(model.config, "frame")]
+    with torch.no_grad():
+        assert torch.allclose(model(x, prompts), frame, atol=1e-6)
+        # weight 0.5 on the frame: half its brightness in [0, 1] units; 0: black (the offset alone)
+        half = model(x, prompts, torch.tensor([[1.0, 0.5], [1.0, 0.0]]))
+        assert torch.allclose(half[0], (frame[0] + 1) / 2 - 1, atol=1e-6)
+        assert torch.allclose(half[1], torch.full_like(half[1], -1.0))
+        # once trained, the gain and offset depend on the other controls and the prompt
+        torch.nn.init.normal_(model.conv_out.weight, std=0.1)
+        changed = x.clone()
+        changed[:, _channels(model.config, "edges")] *= -1
+        assert not torch.allclose(model(x, prompts), model(changed, prompts))
+        assert not torch.allclose(model(x, prompts), model(x, torch.tensor([1, 4])))
+        assert model(x, prompts).abs().max() <= 1
+
+
+def test_the_affine_head_needs_the_frame_control():
+    with pytest.raises(ValueError, match="must include 'frame'"):
+        TransferConfig(head="affine")
+    assert TransferConfig.model_validate({"name": "old", "channels": [8, 16], "groups": 4}).head == "direct"
