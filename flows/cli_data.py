@@ -34,13 +34,21 @@ def register(paths: list[Path]) -> None:
 @command(app, SimulateParams)
 def simulate(params: SimulateParams) -> None:
     """Simulate a manifest's task in MuJoCo and write episodes (Prefect flow `simulate`)."""
-    need.simulable(params.manifest)
-    from flows.simulate import simulate as simulate_flow
+    scenario = need.simulable(params.manifest)
+    from flows.params import ParamsError
+    from flows.simulate import drive_with, simulate as simulate_flow
+
+    if params.policy:
+        params = params.model_copy(update={"policy": need.policies([params.policy])[0][0]})
+        try:
+            drive_with(params.policy, scenario)  # a vision policy's cameras against the manifest's
+        except ParamsError as exc:
+            fail(str(exc))
 
     writing()
     result = simulate_flow(**params.model_dump())
-    out.print(f"{result['new']} new episodes ({result['successes']} successes) under {result['manifest_hash'][:12]}",
-              highlight=False)
+    where = result["folder"] if params.policy else result["manifest_hash"][:12]
+    out.print(f"{result['new']} new episodes ({result['successes']} successes) under {where}", highlight=False)
 
 
 @command(app, CorpusParams)

@@ -17,6 +17,9 @@ class SimulateParams(FlowParams):
     episodes: Episodes = Field(2, description="episodes (seeds seed..seed+N-1)")
     controls: bool = Field(False, description="also render each camera's depth and segmentation "
                            "(docs/transfer.md); episodes simulated without them are simulated again")
+    policy: str | None = Field(None, description="drive the robot with this policy instead of the manifest's scripted "
+                               "controller: scripted:NOISE, bc: or vision: CHECKPOINT_FOLDER or CHECKPOINT_ID; its "
+                               "episodes go in a folder of their own (for `train --also`)")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest",)
 

@@ -20,6 +20,21 @@ def fmt(value: float | None) -> str:
     return "-" if value is None else f"{value:.2f}"
 
 
+def checkpoint_record(policy: Policy, root: Path, by: str = "evaluate") -> ArtifactRecord | None:
+    """A learned policy's checkpoint as the train-policy flow records it (a warehouse ignores
+    it if already there); None for the scripted policy."""
+    if not isinstance(policy, (BCPolicy, VisionPolicy)):
+        return None
+    kind = "bc" if isinstance(policy, BCPolicy) else "vision"
+    checkpoint_id = policy.meta.get("checkpoint_id") or stable_id("checkpoint", kind, policy.meta["weights_sha256"])
+    weights = Path(policy.source) / "model.safetensors"
+    uri = weights.resolve().relative_to(root.resolve()).as_posix() if weights.resolve().is_relative_to(root.resolve()) \
+        else str(weights)
+    return ArtifactRecord(artifact_id=checkpoint_id, kind="checkpoint", uri=uri, sha256=policy.meta["weights_sha256"],
+                          bytes=weights.stat().st_size, manifest_hash=policy.meta.get("manifest_hash"),
+                          attrs={"model": f"{kind}-policy", "registered_by": by})
+
+
 def evaluation_lineage(evaluation_id: str, result_file: Path, root: Path, body: dict, panel_id: str,
                        policy: Policy, stage_run_id: str, digest: str) -> LineageBatch:
     attrs = {"policy": policy.describe(), "panel_id": panel_id, "contract_hash": body["contract_hash"],
@@ -29,18 +44,10 @@ def evaluation_lineage(evaluation_id: str, result_file: Path, root: Path, body: 
         sha256=sha256_file(str(result_file)), bytes=result_file.stat().st_size, manifest_hash=digest,
         stage_run_id=stage_run_id, attrs=attrs)],
         edges=[EdgeRecord(parent_id=panel_id, child_id=evaluation_id, relation="evaluated_on")])
-    if isinstance(policy, (BCPolicy, VisionPolicy)):
-        kind = "bc" if isinstance(policy, BCPolicy) else "vision"
-        checkpoint_id = policy.meta.get("checkpoint_id") or stable_id("checkpoint", kind, policy.meta["weights_sha256"])
-        weights = Path(policy.source) / "model.safetensors"
-        uri = weights.resolve().relative_to(root.resolve()).as_posix() if weights.resolve().is_relative_to(root.resolve()) \
-            else str(weights)
-        # The checkpoint as the train-policy flow records it (ignored if already there).
-        batch.artifacts.insert(0, ArtifactRecord(artifact_id=checkpoint_id, kind="checkpoint", uri=uri,
-                                                 sha256=policy.meta["weights_sha256"], bytes=weights.stat().st_size,
-                                                 manifest_hash=policy.meta.get("manifest_hash"),
-                                                 attrs={"model": f"{kind}-policy", "registered_by": "evaluate"}))
-        batch.edges.append(EdgeRecord(parent_id=checkpoint_id, child_id=evaluation_id, relation="policy"))
+    checkpoint = checkpoint_record(policy, root)
+    if checkpoint is not None:
+        batch.artifacts.insert(0, checkpoint)
+        batch.edges.append(EdgeRecord(parent_id=checkpoint.artifact_id, child_id=evaluation_id, relation="policy"))
     for row in body["table"]:
         suffix = "" if row["cell"] == "all" else f"/{row['cell']}"
         for column in ("sim", "detector", "world", "closed"):  # closed: only when closed loops were run

@@ -30,6 +30,7 @@ class EpisodeFiles:
     reason: str
     steps: int
     stressor_values: dict
+    policy: dict | None = None  # what drove the robot, when not the manifest's scripted controller
 
 
 def _steps_table(ep) -> pa.Table:
@@ -54,39 +55,52 @@ def _atomic(path: Path, write) -> None:
     os.replace(tmp, path)
 
 
-def write_episode(ep, root: Path, manifest_hash: str, index: int, crf: int = 20) -> EpisodeFiles:
+def write_episode(ep, root: Path, manifest_hash: str, index: int, crf: int = 20,
+                  policy: dict | None = None) -> EpisodeFiles:
     """Write one episode under EPISODE_DIR; meta.json is written last and marks it complete.
     Every manifest camera's video is written, and each rig's tiled video (meta.json lists them
     under ``rigs``, apart from ``cameras``): an episode rolled out recording fewer cameras
-    (`rollout(..., record=...)`) is refused."""
+    (`rollout(..., record=...)`) is refused. ``policy``: what drove the robot, when not the
+    manifest's scripted controller (a policy's ``describe()``): the episode goes under
+    POLICY_EPISODE_DIR instead, and meta.json names it."""
     missing = [c.name for c in ep.manifest.cameras if c.name not in ep.frames]
     if missing:
         raise ValueError(f"episode of {ep.manifest.name} seed {ep.seed} has no frames of camera(s) "
                          f"{', '.join(missing)}: roll it out recording every camera to write it")
-    fields = dict(manifest_hash=manifest_hash, index=index)
-    directory = paths.resolve(root, paths.EPISODE_DIR, **fields)
+    if policy is None:
+        directory = paths.resolve(root, paths.EPISODE_DIR, manifest_hash=manifest_hash, index=index)
+    else:
+        directory = paths.resolve(root, paths.POLICY_EPISODE_DIR, manifest_hash=manifest_hash, index=index,
+                                  policy_id=policy_id(policy))
     directory.mkdir(parents=True, exist_ok=True)
     videos = {}
     for camera, frames in ep.frames.items():
         fps = next(c.fps for c in ep.manifest.cameras if c.name == camera)
-        videos[camera] = write_mp4(paths.resolve(root, paths.EPISODE_VIDEO, camera=camera, **fields), frames, fps, crf)
+        videos[camera] = write_mp4(directory / paths.CAMERA_VIDEO.format(camera=camera), frames, fps, crf)
     cameras = sorted(videos)
     for rig in ep.manifest.rigs:  # every view of a rig together, as one video (tasks/sim/rigs.py)
         fps = next(c.fps for c in ep.manifest.cameras if c.name == rig.cameras[0])
-        videos[rig.name] = write_mp4(paths.resolve(root, paths.EPISODE_VIDEO, camera=rig.name, **fields),
+        videos[rig.name] = write_mp4(directory / paths.CAMERA_VIDEO.format(camera=rig.name),
                                      tile(ep.frames, rig.layout), fps, crf)
-    table = paths.resolve(root, paths.EPISODE_TABLE, **fields)
+    table = directory / Path(paths.EPISODE_TABLE).name
     _atomic(table, lambda p: pq.write_table(_steps_table(ep), p, compression="zstd"))
-    meta = paths.resolve(root, paths.EPISODE_META, **fields)
+    meta = directory / Path(paths.EPISODE_META).name
     body = {"manifest_hash": manifest_hash, "index": index, "seed": ep.seed, "success": bool(ep.success),
             "reason": ep.reason, "steps": ep.steps, "control_hz": ep.control_hz,
             "stressors": ep.stressor_values, "cameras": cameras, "task": ep.manifest.task.kind}
     if ep.manifest.rigs:
         body["rigs"] = [rig.name for rig in ep.manifest.rigs]
+    if policy is not None:
+        body["policy"] = policy
     _atomic(meta, lambda p: p.write_text(json.dumps(body, sort_keys=True, indent=1, default=float)))
     return EpisodeFiles(index=index, seed=ep.seed, directory=directory, videos=videos, table=table, meta=meta,
                         success=bool(ep.success), reason=ep.reason, steps=ep.steps,
-                        stressor_values=dict(ep.stressor_values))
+                        stressor_values=dict(ep.stressor_values), policy=policy)
+
+
+def policy_id(policy: dict) -> str:
+    """The id of a policy's ``describe()``: names the folder of the episodes it drove."""
+    return stable_id("policy", json.dumps(policy, sort_keys=True, default=str))
 
 
 def episode_lineage(files: EpisodeFiles, manifest_hash: str, stage_run_id: str, root: Path | None = None) -> LineageBatch:
@@ -97,7 +111,8 @@ def episode_lineage(files: EpisodeFiles, manifest_hash: str, stage_run_id: str, 
     table_sha = sha256_file(str(files.table))
     episode_id = stable_id("episode", manifest_hash, str(files.index), table_sha)
     attrs = {"index": files.index, "seed": files.seed, "success": files.success, "reason": files.reason,
-             "stressors": files.stressor_values, "meta": uri(files.meta)}
+             "stressors": files.stressor_values, "meta": uri(files.meta),
+             **({"policy": files.policy} if files.policy is not None else {})}
     batch = LineageBatch(
         artifacts=[ArtifactRecord(artifact_id=episode_id, kind="episode", uri=uri(files.table), sha256=table_sha,
                                   bytes=files.table.stat().st_size, manifest_hash=manifest_hash,

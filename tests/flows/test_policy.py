@@ -66,3 +66,18 @@ def test_train_policy_with_cameras_records_a_vision_checkpoint_that_evaluate_ref
     other.write_text(manifest.read_text().replace("name: side", "name: top"))
     with pytest.raises(PanelContractError, match="contracts differ in camera layout: top vs side"):
         plan([str(other)], None, 1, [load_policy(f"vision:{result['folder']}")])
+
+    # It drives recorded episodes (`simulate --policy`), in lineage under its checkpoint; a
+    # manifest without its camera is refused in one line.
+    from flows.params import ParamsError
+    from flows.simulate import simulate
+
+    driven = simulate(str(manifest), 1, policy=f"vision:{result['folder']}")
+    assert driven["new"] == 1 and (Path(driven["folder"]) / "episode_000000" / "side.mp4").is_file()
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, edges = wh.query("SELECT a.kind, a.attrs->'policy'->>'kind' FROM edges e JOIN artifacts a "
+                            "ON a.artifact_id = e.child_id WHERE e.parent_id = $c AND e.relation = 'policy'",
+                            {"c": result["checkpoint_id"]})
+    assert edges == [("episode", "vision")]
+    with pytest.raises(ParamsError, match="observes camera\\(s\\) side, which"):
+        simulate(str(other), 1, policy=f"vision:{result['folder']}")

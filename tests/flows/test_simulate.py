@@ -64,3 +64,28 @@ def test_an_episode_finished_before_another_fails_is_recorded(prefect_harness, d
         _, recorded = wh.query("SELECT attrs->>'index' FROM stage_runs WHERE stage = 'simulate'")
     assert runs == [("failed", "RuntimeError: the simulator failed")]
     assert recorded == [("1",)]
+
+
+def test_a_policy_drives_episodes_into_a_folder_of_their_own(prefect_harness, data_root, tmp_path):
+    import json
+
+    from tasks.world.inputs import episode_folders
+
+    manifest = small_manifest(tmp_path)
+    plain = simulate(str(manifest), 1)
+    driven = simulate(str(manifest), 1, policy="scripted:0.9")
+    folder = data_root / "episodes" / f"{plain['manifest_hash'][:12]}-{driven['folder'].rsplit('-', 1)[1]}"
+    assert driven["new"] == 1 and driven["folder"] == str(folder) and (folder / "episode_000000/meta.json").is_file()
+    meta = json.loads((folder / "episode_000000/meta.json").read_text())
+    own = data_root / "episodes" / plain["manifest_hash"][:12]
+    plain_meta = json.loads((own / "episode_000000/meta.json").read_text())
+    assert meta["policy"] == {"kind": "scripted", "name": "scripted@0.9", "noise": 0.9} and "policy" not in plain_meta
+    assert meta["seed"] == plain_meta["seed"]  # the same seed, another driver
+    # the manifest's own episodes stay the scripted controller's; the policy's are found by folder
+    assert episode_folders(str(manifest), data_root)[0] == [own / "episode_000000"]
+    assert episode_folders(str(folder), data_root)[0] == [folder / "episode_000000"]
+    assert simulate(str(manifest), 1, policy="scripted:0.9")["new"] == 0  # found done
+    assert simulate(str(manifest), 1, policy="scripted:0.5")["new"] == 1  # another policy, another folder
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, rows = wh.query("SELECT attrs->'policy'->>'name' FROM artifacts WHERE kind = 'episode' ORDER BY 1")
+    assert rows == [("scripted@0.5",), ("scripted@0.9",), (None,)]
