@@ -30,6 +30,8 @@ the device, and trains the variants on those codes.
     .venv/bin/python bench/world_gpu.py pack-raw manifests/push_closeup.yaml --also manifests/push_closeup_noisy.yaml \
         --shards SHARD_FOLDER --tokenizer-preset small-dv4x4x4 --action-totals 3 --out RAW_DIR
     python3 bench/world_gpu.py train RAW_DIR --raw --tokenizer-steps 3000 --out DIR --device cuda --compile ...
+    .venv/bin/python bench/world_gpu.py train BUNDLE.pt --out DIR --device cpu \
+        --variant 'name=more init=DIR/w8sc/posttrain batch=8 self_condition=0.5 seconds=2400 lr=2e-4'  # go on training
 """
 
 from __future__ import annotations
@@ -53,8 +55,11 @@ from tasks.world.train import WorldTrainConfig  # noqa: E402
 # Variant keys and their defaults (``episodes``: the first N episodes of each packed source, e.g.
 # "1240,400"; empty: all): the CPU recipe of docs/evaluation.md (`--preset small-wm --steps 100
 # --post-steps 5000 --window 4 --action-totals 3`). Model keys go to the preset as overrides.
+# ``init``: a post-trained checkpoint folder to go on training (no pre-training; its architecture,
+# window and action scale are kept, and the bundle must be packed with its tokenizer).
 DEFAULTS = {"name": "base", "preset": "small-wm", "pre_steps": 100, "post_steps": 5000, "batch": 8, "window": 4,
-            "seconds": 0.0, "self_condition": 0.0, "change_weight": 0.0, "episodes": "", "seed": 0}
+            "seconds": 0.0, "self_condition": 0.0, "change_weight": 0.0, "episodes": "", "seed": 0, "init": "",
+            "lr": 0.0}
 MODEL_KEYS = ("width", "layers", "heads")
 
 
@@ -234,7 +239,8 @@ def variant(text: str) -> dict:
         key, _, value = item.partition("=")
         if key not in DEFAULTS and key not in MODEL_KEYS:
             raise SystemExit(f"--variant {text!r}: unknown key {key!r} (known: {', '.join([*DEFAULTS, *MODEL_KEYS])})")
-        spec[key] = value if key in ("name", "preset", "episodes") else float(value) if "." in value else int(value)
+        spec[key] = value if key in ("name", "preset", "episodes", "init") else \
+            float(value) if "." in value or "e-" in value else int(value)
     return spec
 
 
@@ -257,9 +263,13 @@ def train_one(bundle_path: str, spec: dict, out: str, device: str, compile_model
                                    seed=spec["seed"], threads=threads, lr=pre_config.lr / 2, warmup_steps=10,
                                    change_weight=spec["change_weight"], self_condition=spec["self_condition"],
                                    action_totals=bundle["action_totals"], seconds=spec["seconds"] or None)
+    if spec["lr"]:
+        post_config = post_config.model_copy(update={"lr": spec["lr"]})
     folder = Path(out) / spec["name"]
     common = {"tokenizer_id": bundle["tokenizer_id"], "size": bundle["size"], "tokenizer": bundle["tokenizer"]}
     started = time.perf_counter()
+    if spec["init"]:
+        return go_on(spec, bundle, episodes, post_config, folder, common, runtime, started)
     pre_history, _ = phases.pretrain(pretrain, model_config, pre_config, folder / "pretrain",
                                      {"checkpoint_id": f"{spec['name']}-pretrain", **common}, runtime)
     post_history, params = phases.posttrain(
@@ -272,6 +282,35 @@ def train_one(bundle_path: str, spec: dict, out: str, device: str, compile_model
               "params": params, "episode_videos": len(episodes), "seconds": round(time.perf_counter() - started, 1),
               "post_steps_done": post_history[-1]["step"], "post_train_seconds": post_history[-1]["seconds"],
               "final": post_history[-1], "pretrain_final": pre_history[-1]}
+    (folder / "result.json").write_text(json.dumps(result, indent=1))
+    print(json.dumps({k: result[k] for k in ("spec", "params", "seconds", "post_steps_done", "final")}), flush=True)
+    return result
+
+
+def go_on(spec: dict, bundle: dict, episodes: list, post_config: WorldTrainConfig, folder: Path, common: dict,
+          runtime: Runtime, started: float) -> dict:
+    """Go on post-training the checkpoint ``spec["init"]`` on the bundle's episodes."""
+    from tasks.world import checkpoints
+    from tasks.world.train import train_world_model
+
+    init = Path(spec["init"])
+    before = checkpoints.read_config(init)
+    if before.get("tokenizer_id") != bundle["tokenizer_id"]:
+        raise SystemExit(f"init {init}: tokenizer {before.get('tokenizer_id')}, "
+                         f"the bundle's is {bundle['tokenizer_id']}")
+    model = checkpoints.load_checkpoint(init).train()
+    post_config = post_config.model_copy(update={"action_totals": model.config.action_totals, "warmup_steps": 10})
+    history = train_world_model(model, episodes, post_config, None, runtime)
+    checkpoints.save_checkpoint(model.cpu().eval(), folder / "posttrain", {
+        **{k: v for k, v in before.items() if k != "world_model"}, "phase": "posttrain",
+        "train": post_config.model_dump(mode="json"), "checkpoint_id": spec["name"], "continued_from": str(init),
+        "episodes": sorted({e.info["folder"] for e in episodes}), **common,
+        "trained_by": f"bench/world_gpu.py on {runtime.torch_device()}"})
+    result = {"spec": spec, "device": str(runtime.torch_device()),
+              "card": torch.cuda.get_device_name() if torch.cuda.is_available() else "cpu",
+              "params": sum(p.numel() for p in model.parameters()), "episode_videos": len(episodes),
+              "seconds": round(time.perf_counter() - started, 1), "post_steps_done": history[-1]["step"],
+              "post_train_seconds": history[-1]["seconds"], "final": history[-1]}
     (folder / "result.json").write_text(json.dumps(result, indent=1))
     print(json.dumps({k: result[k] for k in ("spec", "params", "seconds", "post_steps_done", "final")}), flush=True)
     return result
