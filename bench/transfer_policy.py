@@ -32,7 +32,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.loop_targeting import bootstrap, evaluate  # noqa: E402
 from bench.vision_panels import FAMILIES, ORDER, TRAIN, panel  # noqa: E402
-from models.transfer import CONTROL_KINDS  # noqa: E402
+from models.transfer import ALL_CONTROLS  # noqa: E402
 from tasks import manifests  # noqa: E402
 from tasks.policy import bc, vision, vision_train  # noqa: E402
 from tasks.policy.vision_obs import ObservationSpec  # noqa: E402
@@ -76,7 +76,7 @@ def main() -> None:
     spec = ObservationSpec(cameras=cameras, image_size=64)
     _, info = model_info(args.model)
     camera = info.get("camera") or cameras[0]
-    weights = dict.fromkeys(CONTROL_KINDS, 1.0)
+    weights = dict.fromkeys(ALL_CONTROLS, 1.0)  # a model reads the ones it takes
     if args.no_rendered:
         weights.update(depth=0.0, segmentation=0.0)
 
