@@ -76,11 +76,11 @@ def write_episode(ep, root: Path, manifest_hash: str, index: int, crf: int = 20,
     videos = {}
     for camera, frames in ep.frames.items():
         fps = next(c.fps for c in ep.manifest.cameras if c.name == camera)
-        videos[camera] = write_mp4(directory / paths.CAMERA_VIDEO.format(camera=camera), frames, fps, crf)
+        videos[camera] = write_mp4(paths.resolve(directory, paths.CAMERA_VIDEO, camera=camera), frames, fps, crf)
     cameras = sorted(videos)
     for rig in ep.manifest.rigs:  # every view of a rig together, as one video (tasks/sim/rigs.py)
         fps = next(c.fps for c in ep.manifest.cameras if c.name == rig.cameras[0])
-        videos[rig.name] = write_mp4(directory / paths.CAMERA_VIDEO.format(camera=rig.name),
+        videos[rig.name] = write_mp4(paths.resolve(directory, paths.CAMERA_VIDEO, camera=rig.name),
                                      tile(ep.frames, rig.layout), fps, crf)
     table = directory / Path(paths.EPISODE_TABLE).name
     _atomic(table, lambda p: pq.write_table(_steps_table(ep), p, compression="zstd"))
