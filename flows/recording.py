@@ -159,6 +159,7 @@ def _recorded(flow: str, settings: Settings, manifest: ScenarioManifest | None, 
         openlineage.emit(lineage_events, lambda: openlineage.event(
             openlineage.RunState.START, run_id, flow, settings.data_root, digest))
         ctx = RunContext(run_id=run_id, flow=flow, warehouse=warehouse, manifest_hash=digest, settings=settings)
+        warehouse.prepare_forced_finish()
         ephemeral.before_forced_exit.append(on_forced_exit := lambda: _close_on_forced_exit(warehouse, run_id))
         try:
             yield ctx
@@ -180,7 +181,7 @@ def _recorded(flow: str, settings: Settings, manifest: ScenarioManifest | None, 
 
 def _close_on_forced_exit(warehouse: Warehouse, run_id: str) -> None:
     """The run row closed as interrupted when the command is forced out before the flow's thread
-    got there; skipped when that thread holds the warehouse (it would never let go)."""
-    if run_id in _LIVE and warehouse._lock.acquire(timeout=1.0):
-        warehouse._lock.release()
-        warehouse.finish_run(run_id, "failed", f"interrupted by {ephemeral.signal_name() or 'a signal'}")
+    got there. Not through the warehouse's lock: a thread the signal interrupted may hold it (a
+    suite run found the row still 'running' when this waited for it)."""
+    if run_id in _LIVE:
+        warehouse.finish_run_forced(run_id, f"interrupted by {ephemeral.signal_name() or 'a signal'}")

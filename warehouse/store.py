@@ -115,6 +115,7 @@ class Warehouse:
         self.snapshot = False  # whether this reader reads the snapshot
         self._publisher = None if read_only else snapshot.publisher(self.path)
         self.before_commit: Callable[[], None] | None = None  # called inside each batch's transaction
+        self._spare: duckdb.DuckDBPyConnection | None = None  # for `finish_run_forced`
         if not read_only:
             self.path.parent.mkdir(parents=True, exist_ok=True)
         elif not self.path.exists():
@@ -331,6 +332,22 @@ class Warehouse:
         if self._publisher is not None and self._publisher.dirty:  # unless that commit published it
             self.publish_snapshot()  # readers see the run's end at once
 
+    def prepare_forced_finish(self) -> None:
+        """Open, now, the second connection `finish_run_forced` writes on."""
+        with self._lock:
+            if self._spare is None and self.con is not None and not self.read_only:
+                self._spare = self.con.cursor()  # DuckDB: a connection of its own to the same database
+
+    def finish_run_forced(self, run_id: str, message: str) -> None:
+        """A still 'running' run row closed as failed from a forced exit, on the spare connection and
+        without this object's lock: a thread the signal interrupted may hold that lock, or be inside a
+        transaction or a checkpoint, for longer than an exit can wait. DuckDB keeps the two
+        connections' transactions apart; the commit is in the write-ahead log the next open replays."""
+        if self._spare is None:
+            raise WarehouseError(f"{self.path}: prepare_forced_finish was not called")
+        self._spare.execute("UPDATE runs SET status = 'failed', message = ?, ended_at = current_timestamp "
+                            "WHERE run_id = ? AND status = 'running'", [message, run_id])
+
     def completed_stage_runs(self, stage: str, input_keys: list[str]) -> set[str]:
         """The input keys of this stage that a finished run already covered (the skip marker)."""
         if not input_keys:
@@ -377,6 +394,9 @@ class Warehouse:
                 if self._publisher.dirty:
                     self._publisher.publish(self.con)
                 self._publisher.cancel()
+        spare, self._spare = self._spare, None
+        if spare is not None:
+            spare.close()
         con, self.con = self.con, None
         if con is not None:
             con.close()

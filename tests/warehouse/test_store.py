@@ -57,6 +57,43 @@ def test_runs_start_and_finish(tmp_path):
     assert rows == [("partial", "2 inputs failed", True)]
 
 
+FORCED_EXIT = """
+import os, sys, threading
+from schemas.records import RunRecord
+from warehouse.store import Warehouse
+wh = Warehouse(sys.argv[1])
+wh.start_run(RunRecord(run_id="r1", flow="simulate"))
+wh.start_run(RunRecord(run_id="r2", flow="simulate"))
+wh.finish_run("r2", "completed")
+wh.prepare_forced_finish()
+inside = threading.Event()
+def interrupted_writer():
+    with wh.transaction() as con:  # holds the lock, mid-transaction, as the signal left it
+        con.execute("INSERT INTO edges VALUES ('p', 'c', 'x')")
+        inside.set()
+        threading.Event().wait()
+threading.Thread(target=interrupted_writer, daemon=True).start()
+inside.wait()
+for run_id in ("r1", "r2"):
+    wh.finish_run_forced(run_id, "interrupted by SIGTERM")
+os._exit(143)
+"""
+
+
+def test_a_forced_exit_closes_its_run_row_while_another_thread_holds_the_warehouse(tmp_path):
+    """A thread stopped inside a transaction holds the lock: the forced exit's close goes past it,
+    leaves a row already closed as it was, and the half-done transaction is not committed."""
+    path = tmp_path / "w.duckdb"
+    done = subprocess.run([sys.executable, "-c", FORCED_EXIT, str(path)], cwd=Path(__file__).parents[2],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 143, done.stderr
+    with Warehouse(path, read_only=True) as wh:
+        _, rows = wh.query("SELECT run_id, status, message, ended_at IS NOT NULL FROM runs ORDER BY run_id")
+        edges = wh.counts()["edges"]
+    assert rows == [("r1", "failed", "interrupted by SIGTERM", True), ("r2", "completed", None, True)]
+    assert edges == 0
+
+
 def test_newer_schema_is_refused(tmp_path):
     path = tmp_path / "w.duckdb"
     Warehouse(path).close()
