@@ -37,8 +37,7 @@ from tasks.manifests import load  # noqa: E402
 from tasks.panels.detect import track_package  # noqa: E402
 from tasks.transfer import metrics  # noqa: E402
 from tasks.transfer.pairs import LOOKS, PairClip, make_pairs  # noqa: E402
-from models.transfer import reference_features  # noqa: E402
-from tasks.transfer.train import frames_tensor, load_transfer, pair_tensors  # noqa: E402
+from tasks.transfer.train import load_transfer, look_row, pair_tensors  # noqa: E402
 
 # The issue's targets; COLOUR_KEPT is this bench's (the issue names no number, see docs/transfer.md).
 EDGE_F_MIN = 0.8
@@ -55,12 +54,13 @@ def to_uint8(frames: torch.Tensor) -> np.ndarray:
 
 
 @torch.no_grad()
-def generate(model, pair: PairClip, reference: np.ndarray | None = None) -> np.ndarray:
+def generate(model, pair: PairClip, reference: PairClip | None = None) -> np.ndarray:
     """The pair's look made free-running (each frame from the model's own previous one), given
-    the frames of a reference clip in that look if ``reference`` (models trained with them)."""
+    a reference clip in that look if ``reference`` (models trained with them; its segmentation
+    gives a palette model the reference's colour per class)."""
     controls, _ = pair_tensors(pair, model.config)
     prompt = torch.tensor([model.config.prompt_index(pair.prompt)])
-    look = None if reference is None else reference_features(frames_tensor(reference)[None])
+    look = None if reference is None else look_row(model.config, reference.frames, reference.seg)
     return to_uint8(model(controls[None], prompt, reference=look)[0])
 
 
@@ -131,10 +131,10 @@ def main(argv: list[str] | None = None) -> None:
         per_seed[seed]["clusters"] = metrics.colour_cluster_score(src.frames, src.seg)
         per_seed[seed]["regions"] = metrics.region_colour_score(src.frames, src.seg)
 
-    renders = {(p.seed, p.prompt): p.frames for p in pairs}
+    renders = {(p.seed, p.prompt): p for p in pairs}
     next_seed = dict(zip(args.seeds, args.seeds[1:] + args.seeds[:1]))
 
-    def reference_of(pair: PairClip) -> np.ndarray | None:
+    def reference_of(pair: PairClip) -> PairClip | None:
         if args.reference == "none":
             return None
         return renders[pair.seed if args.reference == "own" else next_seed[pair.seed], pair.prompt]

@@ -94,7 +94,7 @@ def main() -> None:
         if not model.config.reference:
             parser.error(f"--reference other: {args.model} was not trained with reference clips")
         references = variants.look_references(parent, [c.clip.seed + REFERENCE for c in clips], camera, info["size"],
-                                              LOOKS)
+                                              LOOKS, model.config)
         timing["reference renders"] = time.perf_counter() - t
         t = time.perf_counter()
     mixed = variants.with_variants(nominal, spec, clips, model, LOOKS, weights, references)

@@ -59,9 +59,10 @@ def main(argv: list[str] | None = None) -> None:
                       "train_psnr_after": evaluate(model, pairs, frames=args.eval_frames)}), flush=True)
     if model.config.reference:
         # The look from a reference clip: the held-out seed's own stressed render (its colours
-        # exactly) and a training seed's render of the same look (another draw of that look).
-        own = {(p.seed, p.prompt): p.frames for p in held}
-        other = {p.prompt: p.frames for p in pairs if p.seed == args.seeds[0]}
+        # exactly) and a training seed's render of the same look (another draw of that look);
+        # each with its segmentation, which gives a palette model the clip's class colours.
+        own = {(p.seed, p.prompt): p for p in held}
+        other = {p.prompt: p for p in pairs if p.seed == args.seeds[0]}
         print(json.dumps({
             "held_out_psnr_reference_own": evaluate(model, held, args.eval_frames, lambda p: own[p.seed, p.prompt]),
             "held_out_psnr_reference_other_seed": evaluate(model, held, args.eval_frames, lambda p: other[p.prompt]),

@@ -27,7 +27,7 @@ class TrainTransferParams(DeviceParams):
     manifest: str = Field(description="scenario manifest YAML whose simulator pairs (docs/transfer.md) train the model")
     seeds: str = Field("4", description="N (seeds 0..N-1) or a range A-B: each seed simulated in every look")
     preset_name: str = Field("small", description="transfer model preset (models/transfer.py PRESETS): small | "
-                             "small-ref | small-frame | small-affine | tiny")
+                             "small-ref | small-frame | small-affine | small-palette | tiny")
     steps: Steps = Field(200, description="training steps")
     seconds: float | None = Field(None, gt=0, description="training-time budget: stops at --steps or this")
     size: Side = Field(64, description="pairs are made at size x size (and so is every transfer with the model)")

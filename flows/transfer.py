@@ -103,7 +103,8 @@ def transfer(source: str, look: str, model: str | None = None, camera: str | Non
               "weights": control_weights, "reference": reference}
     look_of, reference_sha = None, None
     if reference:
-        look_of, reference_sha = apply.reference_look(reference, size), sha256_file(reference)
+        look_of = apply.reference_look(reference, size, apply.model_info(folder)[0])
+        reference_sha = sha256_file(reference)
     with recorded_run("transfer", settings, params=params) as run:
         model_in = lineage.model_inputs(run.warehouse, root, folder)  # its bytes checked before it is loaded
         net = train.load_transfer(folder).to(where)

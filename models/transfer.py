@@ -52,6 +52,9 @@ class TransferConfig(BaseModel):
     channels: tuple[int, ...] = Field((32, 64, 128), min_length=1, description="width per resolution level, finest first")
     groups: int = Field(8, ge=1, description="GroupNorm groups (every width must divide by it)")
     reference: bool = Field(False, description="also conditioned on a reference clip's colour statistics")
+    palette: bool = Field(False, description="also given, per segmentation class, the reference clip's mean colour "
+                          "(`palette_features`), drawn over the source's segmentation beside the source's own class "
+                          "means: a look whose colours differ per object, such as a random colour shift")
     head: Literal["direct", "affine"] = Field(
         "direct", description="direct: the net paints the frame; affine: it predicts a per-pixel gain and offset "
         "applied to the (weighted) 'frame' control, so the source's edges pass through unless the net moves them")
@@ -64,6 +67,8 @@ class TransferConfig(BaseModel):
             raise ValueError(f"every width in {self.channels} must divide by groups={self.groups}")
         if self.head == "affine" and "frame" not in self.controls:
             raise ValueError("head 'affine' transforms the source's frame: controls must include 'frame'")
+        if self.palette and not (self.reference and {"frame", "segmentation"} <= set(self.controls)):
+            raise ValueError("palette needs reference conditioning and the 'frame' and 'segmentation' controls")
         return self
 
     def channels_of(self, control: str) -> int:
@@ -72,6 +77,11 @@ class TransferConfig(BaseModel):
     @property
     def control_channels(self) -> int:
         return sum(self.channels_of(c) for c in self.controls)
+
+    @property
+    def reference_size(self) -> int:
+        """Length of a reference row: the global statistics, then (palette) 4 numbers a class."""
+        return REFERENCE_FEATURES + (4 * self.seg_classes if self.palette else 0)
 
     @property
     def multiple(self) -> int:
@@ -100,6 +110,17 @@ def reference_features(frames: torch.Tensor) -> torch.Tensor:
     counts = torch.zeros(*flat.shape[:2], REFERENCE_BINS, device=flat.device).scatter_add_(
         2, index, torch.ones_like(flat))
     return torch.cat([mean, std, (counts / flat.shape[2]).flatten(1)], 1)
+
+
+def palette_features(frames: torch.Tensor, seg: torch.Tensor, classes: int) -> torch.Tensor:
+    """Per segmentation class, the clip's mean colour and whether the class is in it: frames
+    ``B x 3 x T x H x W`` in [-1, 1], seg ``B x T x H x W`` class ids -> ``B x 4 * classes``
+    (r, g, b, 1 for each class present; 0, 0, 0, 0 for one absent)."""
+    onehot = nn.functional.one_hot(seg.long(), classes).to(frames.dtype)  # B x T x H x W x K
+    counts = onehot.sum((1, 2, 3))
+    means = torch.einsum("bthwk,bcthw->bkc", onehot, frames.float()) / counts.clamp(min=1)[..., None]
+    known = (counts > 0).to(frames.dtype)
+    return torch.cat([means * known[..., None], known[..., None]], 2).flatten(1)
 
 
 class FiLMBlock(nn.Module):
@@ -134,7 +155,9 @@ class TransferNet(nn.Module):
         # A reference's statistics move the prompt's embedding; without one it is the prompt's alone.
         self.reference = nn.Sequential(nn.Linear(REFERENCE_FEATURES, c.prompt_dim), nn.SiLU(),
                                        nn.Linear(c.prompt_dim, c.prompt_dim)) if c.reference else None
-        self.conv_in = nn.Conv2d(c.control_channels + 3, c.channels[0], 3, padding=1)
+        # With a palette: the reference's class colours drawn over the segmentation (3), where
+        # they are known (1), and the source frame's own class means drawn the same way (3).
+        self.conv_in = nn.Conv2d(c.control_channels + 3 + (7 if c.palette else 0), c.channels[0], 3, padding=1)
         self.down = nn.ModuleList()
         self.pool = nn.ModuleList()
         for i, width in enumerate(c.channels):
@@ -152,11 +175,32 @@ class TransferNet(nn.Module):
         if c.head == "affine":  # starts as the identity on the frame control: gain 1, offset 0
             nn.init.zeros_(self.conv_out.weight)
             nn.init.zeros_(self.conv_out.bias)
-            start = sum(c.channels_of(name) for name in c.controls[:c.controls.index("frame")])
-            self._frame = slice(start, start + 3)
+        if "frame" in c.controls:
+            self._frame = self._channels("frame")
+        if "segmentation" in c.controls:
+            self._seg = self._channels("segmentation")
         # Per-channel index of the control it belongs to, to spread control weights over channels.
         owner = [i for i, name in enumerate(c.controls) for _ in range(c.channels_of(name))]
         self.register_buffer("_owner", torch.tensor(owner, dtype=torch.long), persistent=False)
+
+    def _channels(self, control: str) -> slice:
+        start = sum(self.config.channels_of(name) for name in self.config.controls[:self.config.controls.index(control)])
+        return slice(start, start + self.config.channels_of(control))
+
+    def palette_maps(self, weighted: torch.Tensor, reference: torch.Tensor | None) -> torch.Tensor:
+        """``B x 7 x H x W``: the reference's class colours over the (weighted) segmentation, where
+        they are known, and the source frame's class means over it. A reference row without a
+        palette (the global statistics only, a clip with no segmentation) knows no class."""
+        seg, frame = weighted[:, self._seg], weighted[:, self._frame]
+        b, k = seg.shape[:2]
+        known_rows = reference is not None and reference.shape[1] == self.config.reference_size
+        palette = (torch.nan_to_num(reference[:, REFERENCE_FEATURES:]).to(seg).view(b, k, 4) if known_rows
+                   else seg.new_zeros(b, k, 4))
+        colours, known = palette[..., :3] * palette[..., 3:], palette[..., 3]
+        counts = seg.sum((2, 3)).clamp(min=1e-6)
+        source = torch.einsum("bkhw,bchw->bkc", seg, frame) / counts[..., None]
+        return torch.cat([torch.einsum("bkhw,bkc->bchw", seg, colours), torch.einsum("bkhw,bk->bhw", seg, known)[:, None],
+                          torch.einsum("bkhw,bkc->bchw", seg, source)], 1)
 
     def weighted(self, controls: torch.Tensor, weights: torch.Tensor | None) -> torch.Tensor:
         """``controls`` (``B x C x [T x] H x W``) with each control's channels times its weight."""
@@ -171,25 +215,32 @@ class TransferNet(nn.Module):
 
     def condition(self, prompts: torch.Tensor, reference: torch.Tensor | None = None) -> torch.Tensor:
         """The look's embedding ``B x prompt_dim``: the prompt's, moved by the reference's
-        features (``B x REFERENCE_FEATURES``; NaN rows mean "no reference" for that clip)."""
+        features (``B x REFERENCE_FEATURES``, or ``B x config.reference_size`` with a palette;
+        NaN rows mean "no reference" for that clip)."""
         p = self.prompt(prompts)
         if reference is None:
             return p
         if self.reference is None:
             raise ValueError("this transfer model was not trained with reference clips")
-        given = ~reference.isnan().any(1, keepdim=True)
-        return p + self.reference(torch.nan_to_num(reference.to(p))) * given
+        if reference.shape[1] not in (REFERENCE_FEATURES, self.config.reference_size):
+            raise ValueError(f"reference rows of {reference.shape[1]} numbers; this model takes {REFERENCE_FEATURES}"
+                             + (f" or {self.config.reference_size}" if self.config.palette else ""))
+        look = reference[:, :REFERENCE_FEATURES]
+        given = ~look.isnan().any(1, keepdim=True)
+        return p + self.reference(torch.nan_to_num(look.to(p))) * given
 
     def step(self, controls: torch.Tensor, previous: torch.Tensor, prompts: torch.Tensor,
              weights: torch.Tensor | None = None, reference: torch.Tensor | None = None) -> torch.Tensor:
         """One frame: controls ``B x C x H x W``, previous frame ``B x 3 x H x W`` in [-1, 1],
-        prompts ``B``, weights ``B x n`` or ``B x n x H x W``, reference features ``B x
-        REFERENCE_FEATURES`` or None -> frame ``B x 3 x H x W`` in [-1, 1]."""
+        prompts ``B``, weights ``B x n`` or ``B x n x H x W``, reference rows (see ``condition``)
+        or None -> frame ``B x 3 x H x W`` in [-1, 1]."""
         m = self.config.multiple
         if controls.shape[-1] % m or controls.shape[-2] % m:
             raise ValueError(f"frame size {tuple(controls.shape[-2:])}: H and W must be multiples of {m}")
         p = self.condition(prompts, reference)
-        h = self.conv_in(torch.cat([self.weighted(controls, weights), previous], 1))
+        weighted = self.weighted(controls, weights)
+        inputs = [weighted, previous, *([self.palette_maps(weighted, reference)] if self.config.palette else [])]
+        h = self.conv_in(torch.cat(inputs, 1))
         skips = []
         for i, block in enumerate(self.down):
             h = block(h, p)
@@ -254,6 +305,9 @@ PRESETS: dict[str, TransferConfig] = {
     # small-frame whose output is a per-pixel gain and offset of the source's frame (head "affine").
     "small-affine": TransferConfig(name="small-affine", controls=ALL_CONTROLS, channels=(16, 32, 64), prompt_dim=32,
                                    groups=8, reference=True, head="affine"),
+    # small-affine also given the reference's mean colour per segmentation class (`palette`).
+    "small-palette": TransferConfig(name="small-palette", controls=ALL_CONTROLS, channels=(16, 32, 64), prompt_dim=32,
+                                    groups=8, reference=True, head="affine", palette=True),
 }
 
 

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from models.transfer import ALL_CONTROLS, PROMPTS, TransferConfig, TransferNet, reference_features
+from models.transfer import ALL_CONTROLS, PROMPTS, TransferConfig, TransferNet
 from schemas import paths
 from schemas.hashing import stable_id
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError, model_config, read_config
@@ -30,7 +30,7 @@ from tasks.guard.config import GuardConfig
 from tasks.guard.faces import FaceDecision, guard_frames
 from tasks.integrity import uri_of
 from tasks.transfer.pairs import PairClip, camera_clip, resize_frames
-from tasks.transfer.train import CHECKPOINT_KEY, checkpoint_size, frames_tensor, pair_tensors
+from tasks.transfer.train import CHECKPOINT_KEY, checkpoint_size, look_row, pair_tensors
 from tasks.video.read import display_frames, probe
 
 # Part of every transfer stage's key: a change to how clips are made makes new files.
@@ -148,11 +148,27 @@ def generate(model: TransferNet, clip: PairClip, look: str, weights: dict[str, f
     return out.add(1).mul(127.5).round().clamp(0, 255).to(torch.uint8).permute(1, 2, 3, 0).numpy()
 
 
-def reference_look(video: Path | str, size: int) -> torch.Tensor:
-    """``1 x REFERENCE_FEATURES``: the colour statistics of a reference video's frames (display
-    orientation) at ``size`` x ``size``, as the model saw its training clips."""
-    frames = resize_frames(np.stack(list(display_frames(Path(video)))), size)
-    return reference_features(frames_tensor(frames)[None])
+def reference_look(video: Path | str, size: int, config: TransferConfig) -> torch.Tensor:
+    """``1 x config.reference_size``: the look of a reference video's frames (display
+    orientation) at ``size`` x ``size``, as the model saw its training clips. For a palette
+    model, a reference that is a simulated episode's camera video with its segmentation
+    control (`worldline simulate --controls`) also gives each class's mean colour; any other
+    clip gives the clip-wide statistics alone, every class unknown."""
+    video = Path(video)
+    if config.palette and (clip := _segmented_episode(video, size)) is not None:
+        return look_row(config, clip.frames, clip.seg)
+    return look_row(config, resize_frames(np.stack(list(display_frames(video))), size))
+
+
+def _segmented_episode(video: Path, size: int) -> PairClip | None:
+    """The episode camera clip ``video`` is, with its segmentation, or None when it is not one."""
+    camera = video.stem  # paths.CAMERA_VIDEO; checked below against the episode's own name for it
+    weights = {**dict.fromkeys(ALL_CONTROLS, 0.0), "segmentation": 1.0}
+    try:
+        source = episode_source(video.parent, camera, weights)
+    except ControlError:
+        return None
+    return source_clip(source, size) if source.video == video else None
 
 
 def setting_id(model_sha: str, weights: dict[str, float], reference_sha: str | None = None) -> str:

@@ -9,7 +9,9 @@ probability ``control_dropout`` per window, so any subset of controls, as a user
 choose, is a input the model has seen. A model with reference conditioning is given the
 colour statistics of the window's whole target clip as its reference (so it learns to take
 the look a reference shows), and none with probability ``reference_dropout`` (so the prompt
-alone still works).
+alone still works). A palette model's reference also carries the target clip's mean colour per
+segmentation class, withheld with probability ``palette_dropout`` (as for a reference clip
+that has no segmentation).
 
 Pure: pairs in, a trained model and its history out; the checkpoint helpers write and read
 ``model.safetensors`` + ``config.json`` (`tasks.checkpoint_files`).
@@ -25,7 +27,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from models.transfer import TransferConfig, TransferNet, preset, reference_features
+from models.transfer import REFERENCE_FEATURES, TransferConfig, TransferNet, palette_features, preset, reference_features
 from tasks.checkpoint_files import load_weights, model_config, read_config, write_checkpoint
 from tasks.device import Runtime, autocast, prepare
 from tasks.tokenize.train import lr_at, psnr
@@ -47,6 +49,8 @@ class TrainConfig(BaseModel):
     control_dropout: float = Field(0.2, ge=0, le=1, description="chance each control gets weight 0 in a window")
     reference_dropout: float = Field(0.3, ge=0, le=1, description="chance a window has no reference clip "
                                      "(models with reference conditioning)")
+    palette_dropout: float = Field(0.3, ge=0, le=1, description="chance a reference's class colours are withheld "
+                                   "(palette models)")
     lr: float = Field(2e-3, gt=0)
     warmup_steps: int = Field(20, ge=0)
     min_lr_ratio: float = Field(0.05, ge=0, le=1)
@@ -78,6 +82,21 @@ def frames_tensor(frames: np.ndarray) -> torch.Tensor:
     return torch.from_numpy(frames).float().div(127.5).sub(1).movedim(-1, 0)
 
 
+def look_row(config: TransferConfig, frames: np.ndarray, seg: np.ndarray | None = None) -> torch.Tensor:
+    """``1 x config.reference_size``: a clip's look as a reference row, from its frames (F x H x W
+    x 3 uint8). A palette model's class colours need ``seg`` (F x H x W class ids of those
+    frames: a simulated clip's segmentation); without it (any other clip) no class is known."""
+    clip = frames_tensor(frames)[None]
+    row = reference_features(clip)
+    if not config.palette:
+        return row
+    if seg is None:
+        return torch.cat([row, torch.zeros(1, 4 * config.seg_classes)], 1)
+    if seg.shape != frames.shape[:3]:
+        raise ValueError(f"segmentation of shape {seg.shape} for frames of shape {frames.shape[:3]}")
+    return torch.cat([row, palette_features(clip, torch.from_numpy(seg)[None], config.seg_classes)], 1)
+
+
 class PairSet:
     """Pairs as tensors once, and batches of random windows drawn from them."""
 
@@ -85,14 +104,16 @@ class PairSet:
         if not pairs:
             raise ValueError("no pairs to train on")
         self.items = [(*pair_tensors(p, config), config.prompt_index(p.prompt)) for p in pairs]
-        self.looks = [reference_features(target[None])[0] for _, target, _ in self.items] if config.reference else None
+        self.looks = ([look_row(config, p.frames, p.seg if config.palette else None)[0] for p in pairs]
+                      if config.reference else None)
         self.controls = len(config.controls)
 
     def sample(self, frames: int, batch: int, gen: torch.Generator, dropout: float = 0.0,
-               reference_dropout: float = 0.0):
+               reference_dropout: float = 0.0, palette_dropout: float = 0.0):
         """(controls ``B x C x T x H x W``, target ``B x 3 x T x H x W``, prompts ``B``, weights
-        ``B x n``, references ``B x REFERENCE_FEATURES`` with NaN rows for none, or None for a
-        model without reference conditioning)."""
+        ``B x n``, references ``B x reference_size`` with NaN rows for none (and, with a palette,
+        class colours zeroed as unknown with probability ``palette_dropout``), or None for a model
+        without reference conditioning)."""
         usable = [i for i, item in enumerate(self.items) if item[0].shape[1] >= frames]
         if not usable:
             raise ValueError(f"no pair has {frames} frames")
@@ -109,6 +130,8 @@ class PairSet:
         references = None
         if self.looks is not None:
             references = torch.stack([self.looks[i] for i in picked])
+            if references.shape[1] > REFERENCE_FEATURES:
+                references[torch.rand(batch, generator=gen) < palette_dropout, REFERENCE_FEATURES:] = 0.0
             references[torch.rand(batch, generator=gen) < reference_dropout] = float("nan")
         return torch.stack(cs), torch.stack(ts), torch.tensor(ps), weights, references
 
@@ -150,7 +173,8 @@ def train_transfer(model: TransferNet, pairs: Sequence[PairClip], config: TrainC
         for group in opt.param_groups:
             group["lr"] = lr_at(config, step, progress)
         controls, target, prompts, weights, references = (None if x is None else x.to(device) for x in data.sample(
-            config.clip_frames, config.batch_size, gen, config.control_dropout, config.reference_dropout))
+            config.clip_frames, config.batch_size, gen, config.control_dropout, config.reference_dropout,
+            config.palette_dropout))
         own = torch.rand(config.batch_size, generator=gen) < config.self_feed
         previous = target
         with autocast(runtime, device):
@@ -179,11 +203,12 @@ def train_transfer(model: TransferNet, pairs: Sequence[PairClip], config: TrainC
 
 @torch.no_grad()
 def evaluate(model: TransferNet, pairs: Sequence[PairClip], frames: int | None = None,
-             reference: Callable[[PairClip], np.ndarray | None] | None = None) -> dict[str, float]:
+             reference: Callable[[PairClip], np.ndarray | PairClip | None] | None = None) -> dict[str, float]:
     """Mean PSNR (dB) per prompt of clips made frame by frame from the model's own previous
     frames (as generation runs), against the stressed rollouts' frames; the first ``frames``.
-    ``reference(pair)``: the frames (F x H x W x 3 uint8) of a clip whose look the model is to
-    take for that pair, or None (the prompt alone)."""
+    ``reference(pair)``: a clip whose look the model is to take for that pair (its frames, F x
+    H x W x 3 uint8, or a PairClip, whose segmentation gives a palette model class colours), or
+    None (the prompt alone)."""
     model.eval()
     device = next(model.parameters()).device
     by_prompt: dict[str, list[float]] = {}
@@ -193,7 +218,10 @@ def evaluate(model: TransferNet, pairs: Sequence[PairClip], frames: int | None =
             controls, target = controls[:, :frames], target[:, :frames]
         prompt = torch.tensor([model.config.prompt_index(pair.prompt)], device=device)
         look = reference(pair) if reference else None
-        features = None if look is None else reference_features(frames_tensor(look)[None]).to(device)
+        if isinstance(look, PairClip):
+            features = look_row(model.config, look.frames, look.seg).to(device)
+        else:
+            features = None if look is None else look_row(model.config, look).to(device)
         out = model(controls[None].to(device), prompt, reference=features).cpu()
         by_prompt.setdefault(pair.prompt, []).append(psnr(target[None], out).item())
     return {k: float(np.mean(v)) for k, v in by_prompt.items()}

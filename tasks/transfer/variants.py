@@ -23,15 +23,15 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from models.transfer import TransferNet, reference_features
+from models.transfer import TransferConfig, TransferNet, reference_features
 from schemas.manifest import ScenarioManifest
 from tasks.controls.render import Recorder
 from tasks.policy.vision import VisionDemonstrations
 from tasks.policy.vision_obs import ObservationSpec
 from tasks.sim.episode import rollout
 from tasks.transfer.apply import generate
-from tasks.transfer.pairs import PairClip, camera_clip, look_manifest, resize_frames
-from tasks.transfer.train import frames_tensor
+from tasks.transfer.pairs import PairClip, camera_clip, look_manifest, make_pairs, resize_frames
+from tasks.transfer.train import frames_tensor, look_row
 
 
 def frame_index(tau: np.ndarray, horizon_s: float, seen_fps: float, fps: float) -> np.ndarray:
@@ -115,10 +115,15 @@ def with_variants(demos: VisionDemonstrations, spec: ObservationSpec, clips: lis
         torch.set_num_threads(threads)
 
 
-def look_references(manifest: ScenarioManifest, seeds: list[int], camera: str, size: int, looks: tuple[str, ...]
-                    ) -> dict[str, list[torch.Tensor]]:
-    """Per look, per seed: `reference_features` of the camera's true render of ``seed`` in that look
-    (`tasks.transfer.pairs.look_manifest`) at ``size``, for a model trained with reference clips."""
+def look_references(manifest: ScenarioManifest, seeds: list[int], camera: str, size: int, looks: tuple[str, ...],
+                    config: TransferConfig | None = None) -> dict[str, list[torch.Tensor]]:
+    """Per look, per seed: the reference row (`tasks.transfer.train.look_row` for ``config``, else
+    `reference_features`) of the camera's true render of ``seed`` in that look
+    (`tasks.transfer.pairs.look_manifest`) at ``size``, for a model trained with reference clips;
+    a palette model's rows carry the render's class colours, from its segmentation."""
+    if config is not None and config.palette:
+        pairs = make_pairs(manifest, seeds, prompts=looks, size=size, camera=camera)
+        return {look: [look_row(config, p.frames, p.seg) for p in pairs if p.prompt == look] for look in looks}
     out: dict[str, list[torch.Tensor]] = {}
     for look in looks:
         variant = look_manifest(manifest, look)

@@ -3,8 +3,8 @@
 import pytest
 import torch
 
-from models.transfer import (PRESETS, PROMPTS, REFERENCE_BINS, REFERENCE_FEATURES, TransferConfig, TransferNet, preset,
-                              reference_features)
+from models.transfer import (ALL_CONTROLS, PRESETS, PROMPTS, REFERENCE_BINS, REFERENCE_FEATURES, TransferConfig,
+                              TransferNet, palette_features, preset, reference_features)
 
 torch.set_num_threads(1)
 
@@ -189,3 +189,71 @@ def test_the_affine_head_needs_the_frame_control():
     with pytest.raises(ValueError, match="must include 'frame'"):
         TransferConfig(head="affine")
     assert TransferConfig.model_validate({"name": "old", "channels": [8, 16], "groups": 4}).head == "direct"
+
+
+def test_palette_features_are_each_class_mean_colour_and_whether_it_is_there():
+    frames = torch.full((1, 3, 2, 2, 4), -1.0)
+    frames[:, 0, :, :, 2:] = 0.5  # the right half red
+    seg = torch.zeros(1, 2, 2, 4, dtype=torch.long)
+    seg[..., 2:] = 2  # class 2 on the right half; class 1 nowhere
+    rows = palette_features(frames, seg, 3).view(3, 4)
+    assert torch.allclose(rows[0], torch.tensor([-1.0, -1.0, -1.0, 1.0]))
+    assert torch.allclose(rows[1], torch.zeros(4))
+    assert torch.allclose(rows[2], torch.tensor([0.5, -1.0, -1.0, 1.0]))
+
+
+def _palette_model(seed=0):
+    config = preset("tiny").model_copy(update={"controls": ALL_CONTROLS, "reference": True, "head": "affine",
+                                               "palette": True})
+    torch.manual_seed(seed)
+    model = TransferNet(config).eval()
+    torch.nn.init.normal_(model.conv_out.weight, std=0.1)  # as if trained: the head reads its inputs
+    return model
+
+
+def _segmented(model, frames=2, side=16):
+    """Controls whose segmentation channels are a real one-hot map (class 1 left, class 3 right)."""
+    x = _controls(model, frames=frames, side=side)
+    seg = torch.zeros(2, model.config.seg_classes, frames, side, side)
+    seg[:, 1, ..., :side // 2] = 1
+    seg[:, 3, ..., side // 2:] = 1
+    x[:, _channels(model.config, "segmentation")] = seg
+    return x
+
+
+def test_a_palette_model_draws_the_references_class_colours_over_the_segmentation():
+    model = _palette_model()
+    c = model.config
+    x, prompts = _segmented(model), torch.tensor([3, 3])
+    look = reference_features(torch.zeros(2, 3, 1, 4, 4))
+    palette = torch.zeros(2, c.seg_classes, 4)
+    palette[:, 1] = torch.tensor([0.9, -0.9, 0.0, 1.0])  # class 1 known and red; class 3 unknown
+    row = torch.cat([look, palette.flatten(1)], 1)
+    maps = model.palette_maps(x[:, :, 0], row)
+    assert torch.allclose(maps[:, :3, :, :8], torch.tensor([0.9, -0.9, 0.0])[None, :, None, None].expand(2, 3, 16, 8))
+    assert torch.all(maps[:, :4, :, 8:] == 0) and torch.all(maps[:, 3, :, :8] == 1)
+    frame = x[:, _channels(c, "frame"), 0]
+    assert torch.allclose(maps[:, 4:, 0, 0], frame[..., :8].mean((2, 3)), atol=1e-5)  # the source's class mean
+    with torch.no_grad():
+        other = row.clone()
+        other[:, REFERENCE_FEATURES + 4:REFERENCE_FEATURES + 7] = -0.5
+        assert not torch.allclose(model(x, prompts, reference=row), model(x, prompts, reference=other))
+        # no palette (a clip without segmentation) is every class unknown; a NaN row the prompt alone
+        unknown = torch.cat([look, torch.zeros(2, 4 * c.seg_classes)], 1)
+        assert torch.equal(model(x, prompts, reference=look), model(x, prompts, reference=unknown))
+        nan = torch.full((2, c.reference_size), float("nan"))
+        assert torch.equal(model(x, prompts, reference=nan), model(x, prompts))
+        # the segmentation's weight gates the palette too: at 0 the class colours are gone
+        off = torch.ones(2, len(c.controls))
+        off[:, c.controls.index("segmentation")] = 0
+        assert torch.equal(model(x, prompts, off, reference=row), model(x, prompts, off, reference=other))
+    with pytest.raises(ValueError, match="reference rows of 5 numbers"):
+        model(x, prompts, reference=torch.zeros(2, 5))
+
+
+def test_a_palette_needs_references_and_the_frame_and_segmentation_controls():
+    with pytest.raises(ValueError, match="palette needs"):
+        TransferConfig(controls=ALL_CONTROLS, head="affine", palette=True)
+    with pytest.raises(ValueError, match="palette needs"):
+        TransferConfig(controls=("edges", "frame"), reference=True, palette=True)
+    assert preset("small-palette").reference_size == REFERENCE_FEATURES + 4 * preset("small-palette").seg_classes

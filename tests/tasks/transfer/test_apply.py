@@ -142,9 +142,23 @@ def test_a_reference_video_gives_its_look_and_its_own_setting(episode):
     clip = apply.source_clip(apply.episode_source(folder, None, weights), SIDE)
     bright = write_video(folder.parent / "bright.mp4", [np.full((48, 64, 3), 230, np.uint8)] * 3, fps=10)
     dark = write_video(folder.parent / "dark.mp4", [np.full((48, 64, 3), 20, np.uint8)] * 3, fps=10)
-    looks = {name: apply.reference_look(path, SIDE) for name, path in (("bright", bright), ("dark", dark))}
+    looks = {name: apply.reference_look(path, SIDE, net.config) for name, path in (("bright", bright), ("dark", dark))}
     assert looks["bright"].shape == (1, REFERENCE_FEATURES) and looks["bright"][0, 0] > 0.7 > -0.7 > looks["dark"][0, 0]
     made = {name: apply.generate(net, clip, "dim", weights, reference=look) for name, look in looks.items()}
     assert not np.array_equal(made["bright"], made["dark"])
     assert not np.array_equal(made["bright"], apply.generate(net, clip, "dim", weights))
     assert apply.setting_id("m" * 64, weights, "r" * 64) != apply.setting_id("m" * 64, weights)
+
+
+def test_a_palette_model_takes_class_colours_from_an_episode_reference_and_none_from_other_clips(episode):
+    folder, rendered = episode
+    config = preset("tiny").model_copy(update={"controls": ALL_CONTROLS, "reference": True, "head": "affine",
+                                               "palette": True})
+    row = apply.reference_look(folder / "side.mp4", SIDE, config)
+    assert row.shape == (1, config.reference_size)
+    palette = row[0, REFERENCE_FEATURES:].view(config.seg_classes, 4)
+    present = set(seg_classes(np.unique(rendered.ids["side"]), rendered.legend).tolist())
+    assert {k for k in range(config.seg_classes) if palette[k, 3] == 1} == present
+    plain = write_video(folder.parent / "plain.mp4", [np.full((48, 64, 3), 90, np.uint8)] * 3, fps=10)
+    other = apply.reference_look(plain, SIDE, config)
+    assert other.shape == (1, config.reference_size) and torch.all(other[0, REFERENCE_FEATURES:] == 0)

@@ -9,10 +9,10 @@ import pytest
 import torch
 
 from tasks.checkpoint_files import CheckpointError
-from models.transfer import PROMPTS, TransferNet, preset, reference_features
+from models.transfer import ALL_CONTROLS, PROMPTS, REFERENCE_FEATURES, TransferNet, preset, reference_features
 from tasks.transfer.pairs import LOOKS, SEG_CLASSES, PairClip
-from tasks.transfer.train import (PairSet, TrainConfig, evaluate, frames_tensor, load_transfer, new_model, pair_tensors,
-                                  save_transfer, train_transfer)
+from tasks.transfer.train import (PairSet, TrainConfig, evaluate, frames_tensor, load_transfer, look_row, new_model,
+                                  pair_tensors, save_transfer, train_transfer)
 
 TINT = {"nominal": (1.0, 1.0, 1.0), "dim": (0.3, 0.3, 0.3), "colour shift": (1.0, 0.5, 0.2)}
 
@@ -124,3 +124,44 @@ def test_the_frame_control_is_the_source_look_s_frames():
     assert torch.equal(target, frames_tensor(pair.frames))
     with pytest.raises(ValueError, match="takes the source's frames"):
         pair_tensors(pair, config)  # made without source frames
+
+
+def _swapped_pairs(side=16, frames=6):
+    """Two seeds whose colour shift paints the left half red and the right blue, or the other
+    way round: the same clip-wide colour statistics, so only the colour per class tells them apart."""
+    seg = np.zeros((frames, side, side), np.uint8)
+    seg[..., side // 2:] = 2
+    source = np.full((frames, side, side, 3), 128, np.uint8)
+    red, blue = np.array([220, 30, 30], np.uint8), np.array([30, 30, 220], np.uint8)
+    out = []
+    for seed, (left, right) in enumerate(((red, blue), (blue, red))):
+        target = np.where((seg == 0)[..., None], left, right).astype(np.uint8)
+        out.append(PairClip(prompt="colour shift", seed=seed, camera="cam", edges=np.zeros((frames, side, side), np.uint8),
+                            blur=source, depth_mm=np.full((frames, side, side), 1000, np.uint16), seg=seg, frames=target,
+                            source_pose=np.zeros((1, 1, 7)), target_pose=np.zeros((1, 1, 7)), source_frames=source))
+    return out
+
+
+def test_a_palette_reference_teaches_which_object_takes_which_colour():
+    pairs = _swapped_pairs()
+    config = preset("tiny").model_copy(update={"controls": ALL_CONTROLS, "reference": True, "head": "affine",
+                                               "palette": True})
+    rows = [look_row(config, p.frames, p.seg) for p in pairs]
+    assert torch.equal(rows[0][:, :REFERENCE_FEATURES], rows[1][:, :REFERENCE_FEATURES])  # the same global look
+    assert not torch.equal(rows[0], rows[1]) and rows[0].shape == (1, config.reference_size)
+    unknown = look_row(config, pairs[0].frames)
+    assert torch.all(unknown[:, REFERENCE_FEATURES:] == 0)
+    with pytest.raises(ValueError, match="segmentation of shape"):
+        look_row(config, pairs[0].frames, pairs[0].seg[:2])
+    *_, references = PairSet(pairs, config).sample(3, 400, torch.Generator().manual_seed(0), reference_dropout=0.2,
+                                                   palette_dropout=0.3)
+    given = ~references.isnan().any(1)
+    withheld = given & (references[:, REFERENCE_FEATURES:] == 0).all(1)
+    assert 0.2 < withheld.float().sum() / given.float().sum() < 0.4
+
+    torch.manual_seed(0)
+    model = TransferNet(config)
+    train_transfer(model, pairs, CONFIG.model_copy(update={"steps": 150, "reference_dropout": 0.2}))
+    with_palette = evaluate(model, pairs, frames=3, reference=lambda p: p)["colour shift"]
+    global_only = evaluate(model, pairs, frames=3, reference=lambda p: p.frames)["colour shift"]
+    assert with_palette > global_only + 3.0, (with_palette, global_only)

@@ -81,3 +81,15 @@ def test_a_reference_model_takes_each_episodes_reference(demos, clips):
     a = variants.transferred(demos, SPEC, clips, model, "colour shift", WEIGHTS, refs["colour shift"])
     b = variants.transferred(demos, SPEC, clips, model, "colour shift", WEIGHTS)
     assert a.frames.shape == b.frames.shape
+
+
+def test_a_palette_models_references_carry_the_renders_class_colours():
+    from models.transfer import ALL_CONTROLS, REFERENCE_FEATURES, preset
+
+    config = preset("tiny").model_copy(update={"controls": ALL_CONTROLS, "reference": True, "head": "affine",
+                                               "palette": True})
+    refs = variants.look_references(PUSH, [40, 41], "side", 16, ("colour shift",), config)["colour shift"]
+    assert len(refs) == 2 and refs[0].shape == (1, config.reference_size)
+    known = [r[0, REFERENCE_FEATURES:].view(config.seg_classes, 4)[:, 3] for r in refs]
+    assert all(k.sum() >= 3 for k in known)  # background, package, robot at least
+    assert not torch.equal(refs[0], refs[1])  # each seed its own colour draw
