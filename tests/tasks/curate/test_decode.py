@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import threading
 from pathlib import Path
 
 import av
@@ -249,3 +250,32 @@ def test_unreferenced_frames_are_found_in_annex_b_and_length_prefixed_streams(tm
     assert len(every) == 60 and 0 < len(frames) < 45
     assert (report.unreferenced, report.missing) == (60 - len(frames), 0)
     assert all(read_index(f.image) == f.index and np.array_equal(f.image, every[f.index]) for f in frames)
+
+
+def test_decoding_ahead_on_a_thread_gives_what_decoding_in_line_gives(make_video, tmp_path):
+    """thread_type AHEAD (the default): the same frames and report as one decoder thread in
+    line, corrupt packets included; an error reaches the consumer; leaving early stops it."""
+    path = make_video((coded(i) for i in range(60)), gop=20)
+    with av.open(str(path)) as container:
+        packets = [(p.pos, p.size) for p in container.demux(video=0) if p.size]
+    data = bytearray(path.read_bytes())
+    for pos, size in packets[25:28]:
+        data[pos + 4: pos + size] = np.random.default_rng(0).integers(0, 256, size - 4, dtype=np.uint8).tobytes()
+    broken = tmp_path / "broken.mp4"
+    broken.write_bytes(bytes(data))
+    assert AnalysisConfig().thread_type == "AHEAD"
+    for source in (path, broken):
+        made = {}
+        for kind in ("AHEAD", "NONE"):
+            report = DecodeReport()
+            frames = list(analysis_frames(source, AnalysisConfig(long_side=64, thread_type=kind), report))
+            made[kind] = ([(f.index, f.time, f.image.tobytes()) for f in frames], report)
+        assert made["AHEAD"] == made["NONE"] and made["AHEAD"][0]
+    assert made["AHEAD"][1].problems  # the broken one's report, complete once the frames are
+    with pytest.raises(DecodeError, match="not a readable video"):
+        list(analysis_frames(make_bad("text", tmp_path)))
+    before = {t.name for t in threading.enumerate()}
+    frames = analysis_frames(path, AnalysisConfig(long_side=64))
+    assert next(frames).index == 0
+    frames.close()
+    assert "analysis-decode" not in {t.name for t in threading.enumerate()} - before
