@@ -5,7 +5,7 @@ import cv2
 import numpy as np
 import pytest
 
-from tasks.transfer.metrics import (adjusted_rand_index, backward_flows, clip_edges, colour_cluster_score,
+from tasks.transfer.metrics import (adjusted_rand_index, grey_median, backward_flows, clip_edges, colour_cluster_score,
                                     colour_distance, edge_f, frechet_distance, kmeans, matched_edges,
                                     package_agreement, region_colour_score, warp_error)
 
@@ -58,6 +58,16 @@ def test_clip_edges_use_one_threshold_pair_for_the_clip():
     dim[1] = (clip[1] * 0.15).astype(np.uint8)
     edges = clip_edges(dim)
     assert edges[0].sum() > edges[1].sum()
+
+
+def test_clip_edges_at_the_sources_exposure_find_a_dark_copys_edges():
+    clip, _ = scene(frames=2)
+    dark = (clip * 0.06).astype(np.uint8)  # steps of at most 12 grey levels: near the rule's floor of 10
+    source = clip_edges(clip)
+    median = grey_median(clip)
+    assert np.array_equal(clip_edges(clip, median), source)  # the source itself: gain 1
+    plain, matched = edge_f(clip_edges(dark), source)["f"], edge_f(clip_edges(dark, median), source)["f"]
+    assert matched > 0.8 and matched > plain + 0.2, (plain, matched)
 
 
 def test_package_agreement_counts_lost_and_far_frames_as_misses():
