@@ -277,11 +277,17 @@ def train_one(bundle_path: str, spec: dict, out: str, device: str, compile_model
         {"checkpoint_id": spec["name"], "pretrained_id": f"{spec['name']}-pretrain", **common,
          "episodes": sorted({e.info["folder"] for e in episodes}), "camera": bundle["camera"],
          "trained_by": f"bench/world_gpu.py on {runtime.torch_device()}"}, runtime)
+    return _report(spec, runtime, params, episodes, started, post_history, folder, pretrain_final=pre_history[-1])
+
+
+def _report(spec: dict, runtime: Runtime, params: int, episodes: list, started: float, history: list[dict],
+            folder: Path, **more) -> dict:
+    """The variant's result: written to its folder's result.json, its summary printed."""
     result = {"spec": spec, "device": str(runtime.torch_device()),
               "card": torch.cuda.get_device_name() if torch.cuda.is_available() else "cpu",
               "params": params, "episode_videos": len(episodes), "seconds": round(time.perf_counter() - started, 1),
-              "post_steps_done": post_history[-1]["step"], "post_train_seconds": post_history[-1]["seconds"],
-              "final": post_history[-1], "pretrain_final": pre_history[-1]}
+              "post_steps_done": history[-1]["step"], "post_train_seconds": history[-1]["seconds"],
+              "final": history[-1], **more}
     (folder / "result.json").write_text(json.dumps(result, indent=1))
     print(json.dumps({k: result[k] for k in ("spec", "params", "seconds", "post_steps_done", "final")}), flush=True)
     return result
@@ -306,14 +312,7 @@ def go_on(spec: dict, bundle: dict, episodes: list, post_config: WorldTrainConfi
         "train": post_config.model_dump(mode="json"), "checkpoint_id": spec["name"], "continued_from": str(init),
         "episodes": sorted({e.info["folder"] for e in episodes}), **common,
         "trained_by": f"bench/world_gpu.py on {runtime.torch_device()}"})
-    result = {"spec": spec, "device": str(runtime.torch_device()),
-              "card": torch.cuda.get_device_name() if torch.cuda.is_available() else "cpu",
-              "params": sum(p.numel() for p in model.parameters()), "episode_videos": len(episodes),
-              "seconds": round(time.perf_counter() - started, 1), "post_steps_done": history[-1]["step"],
-              "post_train_seconds": history[-1]["seconds"], "final": history[-1]}
-    (folder / "result.json").write_text(json.dumps(result, indent=1))
-    print(json.dumps({k: result[k] for k in ("spec", "params", "seconds", "post_steps_done", "final")}), flush=True)
-    return result
+    return _report(spec, runtime, sum(p.numel() for p in model.parameters()), episodes, started, history, folder)
 
 
 def train(args) -> None:
