@@ -36,6 +36,7 @@ CONTROL_KINDS = ("edges", "blur", "depth", "segmentation")  # Cosmos-Transfer's 
 # the model restyles the source's pixels, where the four above make them anew.
 ControlKind = Literal["edges", "blur", "depth", "segmentation", "frame"]
 ALL_CONTROLS = (*CONTROL_KINDS, "frame")
+OBJECT_CLASSES = 8  # tasks.transfer.pairs.OBJECT_CLASSES (a test keeps the two equal)
 
 
 class TransferConfig(BaseModel):
@@ -55,6 +56,9 @@ class TransferConfig(BaseModel):
     palette: bool = Field(False, description="also given, per segmentation class, the reference clip's mean colour "
                           "(`palette_features`), drawn over the source's segmentation beside the source's own class "
                           "means: a look whose colours differ per object, such as a random colour shift")
+    seg_groups: Literal["grouped", "objects"] = Field(
+        "grouped", description="what the segmentation channels' classes are: grouped (tasks.transfer.pairs.SEG_GROUPS, "
+        "table and floor one class) or objects (OBJECT_GROUPS, one class per object; seg_classes 8)")
     head: Literal["direct", "affine"] = Field(
         "direct", description="direct: the net paints the frame; affine: it predicts a per-pixel gain and offset "
         "applied to the (weighted) 'frame' control, so the source's edges pass through unless the net moves them")
@@ -69,6 +73,8 @@ class TransferConfig(BaseModel):
             raise ValueError("head 'affine' transforms the source's frame: controls must include 'frame'")
         if self.palette and not (self.reference and {"frame", "segmentation"} <= set(self.controls)):
             raise ValueError("palette needs reference conditioning and the 'frame' and 'segmentation' controls")
+        if self.seg_groups == "objects" and self.seg_classes != OBJECT_CLASSES:
+            raise ValueError(f"seg_groups 'objects' has {OBJECT_CLASSES} classes, not seg_classes={self.seg_classes}")
         return self
 
     def channels_of(self, control: str) -> int:
@@ -184,7 +190,8 @@ class TransferNet(nn.Module):
         self.register_buffer("_owner", torch.tensor(owner, dtype=torch.long), persistent=False)
 
     def _channels(self, control: str) -> slice:
-        start = sum(self.config.channels_of(name) for name in self.config.controls[:self.config.controls.index(control)])
+        before = self.config.controls[:self.config.controls.index(control)]
+        start = sum(self.config.channels_of(name) for name in before)
         return slice(start, start + self.config.channels_of(control))
 
     def palette_maps(self, weighted: torch.Tensor, reference: torch.Tensor | None) -> torch.Tensor:
@@ -199,8 +206,9 @@ class TransferNet(nn.Module):
         colours, known = palette[..., :3] * palette[..., 3:], palette[..., 3]
         counts = seg.sum((2, 3)).clamp(min=1e-6)
         source = torch.einsum("bkhw,bchw->bkc", seg, frame) / counts[..., None]
-        return torch.cat([torch.einsum("bkhw,bkc->bchw", seg, colours), torch.einsum("bkhw,bk->bhw", seg, known)[:, None],
-                          torch.einsum("bkhw,bkc->bchw", seg, source)], 1)
+        drawn = torch.einsum("bkhw,bkc->bchw", seg, colours)
+        where = torch.einsum("bkhw,bk->bhw", seg, known)[:, None]
+        return torch.cat([drawn, where, torch.einsum("bkhw,bkc->bchw", seg, source)], 1)
 
     def weighted(self, controls: torch.Tensor, weights: torch.Tensor | None) -> torch.Tensor:
         """``controls`` (``B x C x [T x] H x W``) with each control's channels times its weight."""
@@ -305,9 +313,10 @@ PRESETS: dict[str, TransferConfig] = {
     # small-frame whose output is a per-pixel gain and offset of the source's frame (head "affine").
     "small-affine": TransferConfig(name="small-affine", controls=ALL_CONTROLS, channels=(16, 32, 64), prompt_dim=32,
                                    groups=8, reference=True, head="affine"),
-    # small-affine also given the reference's mean colour per segmentation class (`palette`).
+    # small-affine also given the reference's mean colour per object (`palette`, `seg_groups` objects).
     "small-palette": TransferConfig(name="small-palette", controls=ALL_CONTROLS, channels=(16, 32, 64), prompt_dim=32,
-                                    groups=8, reference=True, head="affine", palette=True),
+                                    groups=8, reference=True, head="affine", palette=True, seg_groups="objects",
+                                    seg_classes=OBJECT_CLASSES),
 }
 
 

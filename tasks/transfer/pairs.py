@@ -45,6 +45,14 @@ SEG_GROUPS: tuple[tuple[str, ...], ...] = (
     ("background",), ("package",), ("robot",), ("table", "floor", "bin"), ("goal",),
 )
 SEG_CLASSES = len(SEG_GROUPS) + 1
+# One class per object the scenes name: what a palette model's colours are drawn over
+# (`TransferConfig.seg_groups: objects`). SEG_GROUPS puts table and floor in one class, whose
+# colours a colour shift draws apart: one gain per class then recovers 21 dB of a colour-shifted
+# render, one per object 54 dB (push_closeup, seeds 25 and 40).
+OBJECT_GROUPS: tuple[tuple[str, ...], ...] = (
+    ("background",), ("package",), ("robot",), ("table",), ("floor",), ("bin",), ("goal",),
+)
+OBJECT_CLASSES = len(OBJECT_GROUPS) + 1
 
 
 @dataclass(frozen=True)
@@ -66,6 +74,7 @@ class PairClip:
     source_pose: np.ndarray
     target_pose: np.ndarray
     source_frames: np.ndarray | None = None
+    objects: np.ndarray | None = None  # F x H x W OBJECT_GROUPS classes (None: made without them)
 
 
 def source_manifest(parent: ScenarioManifest) -> ScenarioManifest:
@@ -85,11 +94,12 @@ def look_manifest(parent: ScenarioManifest, prompt: str) -> ScenarioManifest:
     return variant_manifest(parent, grid, grid.cells[0])
 
 
-def seg_classes(ids: np.ndarray, legend: tuple[str, ...]) -> np.ndarray:
-    """Legend ids -> SEG_GROUPS classes (the last class for names in no group)."""
-    table = np.full(len(legend), len(SEG_GROUPS), np.uint8)
+def seg_classes(ids: np.ndarray, legend: tuple[str, ...], groups: tuple[tuple[str, ...], ...] = SEG_GROUPS
+                ) -> np.ndarray:
+    """Legend ids -> ``groups`` classes (the last class for names in no group)."""
+    table = np.full(len(legend), len(groups), np.uint8)
     for i, name in enumerate(legend):
-        for k, group in enumerate(SEG_GROUPS):
+        for k, group in enumerate(groups):
             if name in group:
                 table[i] = k
     return table[ids]
@@ -123,9 +133,11 @@ def camera_clip(frames: np.ndarray, size: int, camera: str, seed: int, depth_mm:
     shape = small.shape[:3]
     depth = np.zeros(shape, np.uint16) if depth_mm is None else resize_frames(depth_mm, size, nearest=True)
     seg = np.zeros(shape, np.uint8) if ids is None else resize_frames(seg_classes(ids, legend), size, nearest=True)
+    objects = np.zeros(shape, np.uint8) if ids is None else resize_frames(seg_classes(ids, legend, OBJECT_GROUPS), size,
+                                                                           nearest=True)
     none = np.zeros((0, 0, 7))
     return PairClip(prompt="nominal", seed=seed, camera=camera, edges=made["edges"], blur=made["blur"], depth_mm=depth,
-                    seg=seg, frames=small, source_pose=none, target_pose=none, source_frames=small)
+                    seg=seg, frames=small, source_pose=none, target_pose=none, source_frames=small, objects=objects)
 
 
 def make_pairs(parent: ScenarioManifest, seeds: list[int] | tuple[int, ...], prompts: tuple[str, ...] = tuple(LOOKS),

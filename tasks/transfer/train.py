@@ -27,7 +27,8 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from models.transfer import REFERENCE_FEATURES, TransferConfig, TransferNet, palette_features, preset, reference_features
+from models.transfer import (REFERENCE_FEATURES, TransferConfig, TransferNet, palette_features, preset,
+                             reference_features)
 from tasks.checkpoint_files import load_weights, model_config, read_config, write_checkpoint
 from tasks.device import Runtime, autocast, prepare
 from tasks.tokenize.train import lr_at, psnr
@@ -59,13 +60,23 @@ class TrainConfig(BaseModel):
     log_every: int = Field(10, ge=1)
 
 
+def clip_seg(config: TransferConfig, clip: PairClip) -> np.ndarray:
+    """The clip's segmentation in the model's classes (``config.seg_groups``): F x H x W."""
+    if config.seg_groups == "grouped":
+        return clip.seg
+    if clip.objects is None:
+        raise ValueError(f"the model's segmentation is per object (seg_groups 'objects'); clip {clip.prompt!r} of seed "
+                         f"{clip.seed} was made without it")
+    return clip.objects
+
+
 def pair_tensors(pair: PairClip, config: TransferConfig) -> tuple[torch.Tensor, torch.Tensor]:
     """(controls ``C x F x H x W`` stacked in ``config.controls`` order, target ``3 x F x H x W``), float."""
     parts = {
         "edges": torch.from_numpy(pair.edges).float().div(127.5).sub(1)[None],
         "blur": torch.from_numpy(pair.blur).float().div(127.5).sub(1).movedim(-1, 0),
         "depth": torch.from_numpy(depth_signal(pair.depth_mm))[None],
-        "segmentation": torch.nn.functional.one_hot(torch.from_numpy(pair.seg).long(), config.seg_classes)
+        "segmentation": torch.nn.functional.one_hot(torch.from_numpy(clip_seg(config, pair)).long(), config.seg_classes)
         .float().movedim(-1, 0),
     }
     if "frame" in config.controls:
@@ -104,7 +115,7 @@ class PairSet:
         if not pairs:
             raise ValueError("no pairs to train on")
         self.items = [(*pair_tensors(p, config), config.prompt_index(p.prompt)) for p in pairs]
-        self.looks = ([look_row(config, p.frames, p.seg if config.palette else None)[0] for p in pairs]
+        self.looks = ([look_row(config, p.frames, clip_seg(config, p) if config.palette else None)[0] for p in pairs]
                       if config.reference else None)
         self.controls = len(config.controls)
 
@@ -219,7 +230,7 @@ def evaluate(model: TransferNet, pairs: Sequence[PairClip], frames: int | None =
         prompt = torch.tensor([model.config.prompt_index(pair.prompt)], device=device)
         look = reference(pair) if reference else None
         if isinstance(look, PairClip):
-            features = look_row(model.config, look.frames, look.seg).to(device)
+            features = look_row(model.config, look.frames, clip_seg(model.config, look)).to(device)
         else:
             features = None if look is None else look_row(model.config, look).to(device)
         out = model(controls[None].to(device), prompt, reference=features).cpu()

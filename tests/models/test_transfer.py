@@ -257,3 +257,6 @@ def test_a_palette_needs_references_and_the_frame_and_segmentation_controls():
     with pytest.raises(ValueError, match="palette needs"):
         TransferConfig(controls=("edges", "frame"), reference=True, palette=True)
     assert preset("small-palette").reference_size == REFERENCE_FEATURES + 4 * preset("small-palette").seg_classes
+    assert preset("small-palette").seg_groups == "objects" and preset("small").seg_groups == "grouped"
+    with pytest.raises(ValueError, match="seg_groups 'objects' has 8 classes"):
+        TransferConfig(seg_groups="objects")

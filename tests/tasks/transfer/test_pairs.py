@@ -7,7 +7,9 @@ import pytest
 from tasks.controls.render import Recorder
 from tasks.controls.video import frame_controls
 from tasks.sim.episode import rollout
-from tasks.transfer.pairs import LOOKS, SEG_CLASSES, SEG_GROUPS, look_manifest, make_pairs, seg_classes, source_manifest
+from models.transfer import OBJECT_CLASSES as MODEL_OBJECT_CLASSES
+from tasks.transfer.pairs import (LOOKS, OBJECT_CLASSES, OBJECT_GROUPS, SEG_CLASSES, SEG_GROUPS, look_manifest, make_pairs,
+                                  seg_classes, source_manifest)
 from tasks.manifests import load as load_manifest
 
 from tests.support import MANIFESTS
@@ -81,6 +83,21 @@ def test_manifests_keep_all_but_the_look():
 def test_seg_classes_group_the_legend():
     legend = ("background", "package", "bin", "robot", "distractor_0")
     assert seg_classes(np.arange(5, dtype=np.uint8), legend).tolist() == [0, 1, 3, 2, SEG_CLASSES - 1]
+
+
+def test_object_classes_keep_table_and_floor_apart():
+    legend = ("background", "package", "floor", "goal", "robot", "table", "distractor_0")
+    ids = np.arange(7, dtype=np.uint8)
+    assert seg_classes(ids, legend).tolist() == [0, 1, 3, 4, 2, 3, SEG_CLASSES - 1]  # table and floor: one class
+    assert seg_classes(ids, legend, OBJECT_GROUPS).tolist() == [0, 1, 4, 6, 2, 3, OBJECT_CLASSES - 1]
+    assert OBJECT_CLASSES == MODEL_OBJECT_CLASSES
+
+
+def test_pairs_carry_both_segmentations():
+    pair = make_pairs(load_manifest(MANIFESTS / "push_closeup.yaml"), [21], prompts=("nominal",), horizon_s=0.3)[0]
+    assert pair.objects.shape == pair.seg.shape
+    floor_or_table = np.isin(pair.seg, [3])
+    assert set(np.unique(pair.objects[floor_or_table]).tolist()) == {3, 4}  # the grouped class split in two
 
 
 def test_several_seeds_each_get_their_own_pairs():

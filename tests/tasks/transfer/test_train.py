@@ -165,3 +165,15 @@ def test_a_palette_reference_teaches_which_object_takes_which_colour():
     with_palette = evaluate(model, pairs, frames=3, reference=lambda p: p)["colour shift"]
     global_only = evaluate(model, pairs, frames=3, reference=lambda p: p.frames)["colour shift"]
     assert with_palette > global_only + 3.0, (with_palette, global_only)
+
+
+def test_a_per_object_model_reads_the_object_classes_and_refuses_a_clip_without_them():
+    config = preset("small-palette")
+    pair = _swapped_pairs()[0]
+    with pytest.raises(ValueError, match="per object"):
+        pair_tensors(pair, config)
+    objects = (pair.seg > 0).astype(np.uint8) * 4  # floor on the right
+    controls, _ = pair_tensors(dataclasses.replace(pair, objects=objects), config)
+    start = sum(config.channels_of(c) for c in config.controls[:config.controls.index("segmentation")])
+    seg = controls[start:start + config.seg_classes]
+    assert torch.equal(seg.argmax(0), torch.from_numpy(objects).long())
