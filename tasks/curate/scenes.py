@@ -63,7 +63,10 @@ def scenes_of(path: Path | str, config: SceneConfig = SceneConfig(), analysis: A
     info = info or probe(path)
     frames = analysis_frames(path, analysis, report, info)
     if not analysis.skip_unreferenced:
-        yield from split_scenes(frames, info.fps, config, keep_frames, report=report)
+        try:
+            yield from split_scenes(frames, info.fps, config, keep_frames, report=report)
+        finally:
+            frames.close()  # at once, also on an error: a decoder running ahead stops and lets go of the file
         return
     exact = ExactFrames(path, analysis, info)
 
@@ -77,6 +80,7 @@ def scenes_of(path: Path | str, config: SceneConfig = SceneConfig(), analysis: A
     try:
         yield from split_scenes(frames, info.fps, config, keep_frames, refill, report)
     finally:
+        frames.close()
         exact.close()
 
 
