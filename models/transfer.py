@@ -162,7 +162,7 @@ class TransferNet(nn.Module):
         self.reference = nn.Sequential(nn.Linear(REFERENCE_FEATURES, c.prompt_dim), nn.SiLU(),
                                        nn.Linear(c.prompt_dim, c.prompt_dim)) if c.reference else None
         # With a palette: the reference's class colours drawn over the segmentation (3), where
-        # they are known (1), and the source frame's own class means drawn the same way (3).
+        # they are known (1), and the gain from the source's class means to them (3).
         self.conv_in = nn.Conv2d(c.control_channels + 3 + (7 if c.palette else 0), c.channels[0], 3, padding=1)
         self.down = nn.ModuleList()
         self.pool = nn.ModuleList()
@@ -196,8 +196,10 @@ class TransferNet(nn.Module):
 
     def palette_maps(self, weighted: torch.Tensor, reference: torch.Tensor | None) -> torch.Tensor:
         """``B x 7 x H x W``: the reference's class colours over the (weighted) segmentation, where
-        they are known, and the source frame's class means over it. A reference row without a
-        palette (the global statistics only, a clip with no segmentation) knows no class."""
+        they are known, and the gain per colour channel minus 1 that takes the source frame's
+        class mean to the reference's (in [0, 1] units, at most 4; 0 where unknown): what the
+        affine head's gain reads. A reference row without a palette (the global statistics
+        only, a clip with no segmentation) knows no class."""
         seg, frame = weighted[:, self._seg], weighted[:, self._frame]
         b, k = seg.shape[:2]
         known_rows = reference is not None and reference.shape[1] == self.config.reference_size
@@ -205,10 +207,11 @@ class TransferNet(nn.Module):
                    else seg.new_zeros(b, k, 4))
         colours, known = palette[..., :3] * palette[..., 3:], palette[..., 3]
         counts = seg.sum((2, 3)).clamp(min=1e-6)
-        source = torch.einsum("bkhw,bchw->bkc", seg, frame) / counts[..., None]
+        source = torch.einsum("bkhw,bchw->bkc", seg, (frame + 1) / 2) / counts[..., None]  # [0, 1] units
+        gain = (((colours + 1) / 2) / source.clamp(min=0.02) - 1).clamp(-1, 3) * known[..., None]
         drawn = torch.einsum("bkhw,bkc->bchw", seg, colours)
         where = torch.einsum("bkhw,bk->bhw", seg, known)[:, None]
-        return torch.cat([drawn, where, torch.einsum("bkhw,bkc->bchw", seg, source)], 1)
+        return torch.cat([drawn, where, torch.einsum("bkhw,bkc->bchw", seg, gain)], 1)
 
     def weighted(self, controls: torch.Tensor, weights: torch.Tensor | None) -> torch.Tensor:
         """``controls`` (``B x C x [T x] H x W``) with each control's channels times its weight."""

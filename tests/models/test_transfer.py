@@ -232,8 +232,11 @@ def test_a_palette_model_draws_the_references_class_colours_over_the_segmentatio
     maps = model.palette_maps(x[:, :, 0], row)
     assert torch.allclose(maps[:, :3, :, :8], torch.tensor([0.9, -0.9, 0.0])[None, :, None, None].expand(2, 3, 16, 8))
     assert torch.all(maps[:, :4, :, 8:] == 0) and torch.all(maps[:, 3, :, :8] == 1)
-    frame = x[:, _channels(c, "frame"), 0]
-    assert torch.allclose(maps[:, 4:, 0, 0], frame[..., :8].mean((2, 3)), atol=1e-5)  # the source's class mean
+    frame01 = (x[:, _channels(c, "frame"), 0] + 1) / 2
+    source = frame01[..., :8].mean((2, 3))  # the source's class mean on the left, in [0, 1] units
+    expected = (((torch.tensor([0.9, -0.9, 0.0]) + 1) / 2) / source - 1).clamp(-1, 3)
+    assert torch.allclose(maps[:, 4:, 0, 0], expected, atol=1e-4)  # the gain, minus 1, that takes it there
+    assert torch.all(maps[:, 4:, :, 8:] == 0)  # unknown on the right: no gain
     with torch.no_grad():
         other = row.clone()
         other[:, REFERENCE_FEATURES + 4:REFERENCE_FEATURES + 7] = -0.5
