@@ -178,7 +178,7 @@ class TransferNet(nn.Module):
             self.up.append(FiLMBlock(2 * c.channels[i], c.channels[i], c.prompt_dim, c.groups))
         self.norm_out = nn.GroupNorm(c.groups, c.channels[0])
         self.conv_out = nn.Conv2d(c.channels[0], 6 if c.head == "affine" else 3, 3, padding=1)
-        if c.head == "affine":  # starts as the identity on the frame control: gain 1, offset 0
+        if c.head == "affine":  # starts as the identity on the frame control (with a palette: its gain), offset 0
             nn.init.zeros_(self.conv_out.weight)
             nn.init.zeros_(self.conv_out.bias)
         if "frame" in c.controls:
@@ -250,8 +250,8 @@ class TransferNet(nn.Module):
             raise ValueError(f"frame size {tuple(controls.shape[-2:])}: H and W must be multiples of {m}")
         p = self.condition(prompts, reference)
         weighted = self.weighted(controls, weights)
-        inputs = [weighted, previous, *([self.palette_maps(weighted, reference)] if self.config.palette else [])]
-        h = self.conv_in(torch.cat(inputs, 1))
+        maps = self.palette_maps(weighted, reference) if self.config.palette else None
+        h = self.conv_in(torch.cat([weighted, previous, *([maps] if maps is not None else [])], 1))
         skips = []
         for i, block in enumerate(self.down):
             h = block(h, p)
@@ -266,6 +266,8 @@ class TransferNet(nn.Module):
         if self.config.head == "direct":
             return torch.tanh(out)
         gain, offset = out.split(3, 1)
+        if maps is not None:  # the palette's gain is where the head starts: the net learns what it misses
+            gain = gain + maps[:, 4:]
         # In [0, 1] pixel units: the frame's weight scales the source pixel (0: the offset alone).
         frame01 = (controls[:, self._frame] + 1) / 2
         if weights is not None:

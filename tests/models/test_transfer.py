@@ -254,6 +254,24 @@ def test_a_palette_model_draws_the_references_class_colours_over_the_segmentatio
         model(x, prompts, reference=torch.zeros(2, 5))
 
 
+def test_a_new_palette_model_applies_the_palettes_gain_to_the_source():
+    config = preset("tiny").model_copy(update={"controls": ALL_CONTROLS, "reference": True, "head": "affine",
+                                               "palette": True})
+    torch.manual_seed(0)
+    model = TransferNet(config).eval()  # untrained: the head's own gain and offset are 0
+    x, prompts = _segmented(model), torch.tensor([3, 3])
+    palette = torch.zeros(2, config.seg_classes, 4)
+    palette[:, 1] = torch.tensor([0.2, -0.6, 0.0, 1.0])
+    row = torch.cat([reference_features(torch.zeros(2, 3, 1, 4, 4)), palette.flatten(1)], 1)
+    frame01 = (x[:, _channels(config, "frame")] + 1) / 2
+    with torch.no_grad():
+        out01 = (model(x, prompts, reference=row) + 1) / 2
+        assert torch.allclose(out01[..., 8:], frame01[..., 8:], atol=1e-6)  # class 3, unknown: the source as is
+        left = out01[..., :8].mean((2, 3, 4))  # class 1 takes the palette's colour (where nothing clips)
+        assert torch.allclose(left[:, 1], torch.full((2,), 0.2), atol=0.02)
+        assert torch.allclose(left[:, 2], torch.full((2,), 0.5), atol=0.02)
+
+
 def test_a_palette_needs_references_and_the_frame_and_segmentation_controls():
     with pytest.raises(ValueError, match="palette needs"):
         TransferConfig(controls=ALL_CONTROLS, head="affine", palette=True)
