@@ -37,7 +37,7 @@ from tasks.manifests import load  # noqa: E402
 from tasks.panels.detect import track_package  # noqa: E402
 from tasks.transfer import metrics  # noqa: E402
 from tasks.transfer.pairs import LOOKS, PairClip, make_pairs  # noqa: E402
-from tasks.transfer.train import clip_seg, load_transfer, look_row, pair_tensors  # noqa: E402
+from tasks.transfer.train import clip_look, load_transfer, pair_tensors  # noqa: E402
 
 # The issue's targets; COLOUR_KEPT is this bench's (the issue names no number, see docs/transfer.md).
 EDGE_F_MIN = 0.8
@@ -60,7 +60,7 @@ def generate(model, pair: PairClip, reference: PairClip | None = None) -> np.nda
     gives a palette model the reference's colour per class)."""
     controls, _ = pair_tensors(pair, model.config)
     prompt = torch.tensor([model.config.prompt_index(pair.prompt)])
-    look = None if reference is None else look_row(model.config, reference.frames, clip_seg(model.config, reference))
+    look = None if reference is None else clip_look(model.config, reference)
     return to_uint8(model(controls[None], prompt, reference=look)[0])
 
 

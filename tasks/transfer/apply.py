@@ -30,7 +30,7 @@ from tasks.guard.config import GuardConfig
 from tasks.guard.faces import FaceDecision, guard_frames
 from tasks.integrity import uri_of
 from tasks.transfer.pairs import PairClip, camera_clip, resize_frames
-from tasks.transfer.train import CHECKPOINT_KEY, checkpoint_size, clip_seg, look_row, pair_tensors
+from tasks.transfer.train import CHECKPOINT_KEY, checkpoint_size, clip_look, look_row, pair_tensors
 from tasks.video.read import display_frames, probe
 
 # Part of every transfer stage's key: a change to how clips are made makes new files.
@@ -156,7 +156,7 @@ def reference_look(video: Path | str, size: int, config: TransferConfig) -> torc
     clip gives the clip-wide statistics alone, every class unknown."""
     video = Path(video)
     if config.palette and (clip := _segmented_episode(video, size)) is not None:
-        return look_row(config, clip.frames, clip_seg(config, clip))
+        return clip_look(config, clip)
     return look_row(config, resize_frames(np.stack(list(display_frames(video))), size))
 
 

@@ -108,6 +108,11 @@ def look_row(config: TransferConfig, frames: np.ndarray, seg: np.ndarray | None 
     return torch.cat([row, palette_features(clip, torch.from_numpy(seg)[None], config.seg_classes)], 1)
 
 
+def clip_look(config: TransferConfig, clip: PairClip) -> torch.Tensor:
+    """`look_row` of a simulated clip: its frames, with its segmentation in the model's classes."""
+    return look_row(config, clip.frames, clip_seg(config, clip))
+
+
 class PairSet:
     """Pairs as tensors once, and batches of random windows drawn from them."""
 
@@ -115,8 +120,7 @@ class PairSet:
         if not pairs:
             raise ValueError("no pairs to train on")
         self.items = [(*pair_tensors(p, config), config.prompt_index(p.prompt)) for p in pairs]
-        self.looks = ([look_row(config, p.frames, clip_seg(config, p) if config.palette else None)[0] for p in pairs]
-                      if config.reference else None)
+        self.looks = [clip_look(config, p)[0] for p in pairs] if config.reference else None
         self.controls = len(config.controls)
 
     def sample(self, frames: int, batch: int, gen: torch.Generator, dropout: float = 0.0,
@@ -230,7 +234,7 @@ def evaluate(model: TransferNet, pairs: Sequence[PairClip], frames: int | None =
         prompt = torch.tensor([model.config.prompt_index(pair.prompt)], device=device)
         look = reference(pair) if reference else None
         if isinstance(look, PairClip):
-            features = look_row(model.config, look.frames, clip_seg(model.config, look)).to(device)
+            features = clip_look(model.config, look).to(device)
         else:
             features = None if look is None else look_row(model.config, look).to(device)
         out = model(controls[None].to(device), prompt, reference=features).cpu()

@@ -31,7 +31,7 @@ from tasks.policy.vision_obs import ObservationSpec
 from tasks.sim.episode import rollout
 from tasks.transfer.apply import generate
 from tasks.transfer.pairs import PairClip, camera_clip, look_manifest, make_pairs, resize_frames
-from tasks.transfer.train import clip_seg, frames_tensor, look_row
+from tasks.transfer.train import clip_look, frames_tensor
 
 
 def frame_index(tau: np.ndarray, horizon_s: float, seen_fps: float, fps: float) -> np.ndarray:
@@ -123,7 +123,7 @@ def look_references(manifest: ScenarioManifest, seeds: list[int], camera: str, s
     a palette model's rows carry the render's class colours, from its segmentation."""
     if config is not None and config.palette:
         pairs = make_pairs(manifest, seeds, prompts=looks, size=size, camera=camera)
-        return {look: [look_row(config, p.frames, clip_seg(config, p)) for p in pairs if p.prompt == look]
+        return {look: [clip_look(config, p) for p in pairs if p.prompt == look]
                 for look in looks}
     out: dict[str, list[torch.Tensor]] = {}
     for look in looks:
