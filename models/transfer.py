@@ -59,6 +59,10 @@ class TransferConfig(BaseModel):
     seg_groups: Literal["grouped", "objects"] = Field(
         "grouped", description="what the segmentation channels' classes are: grouped (tasks.transfer.pairs.SEG_GROUPS, "
         "table and floor one class) or objects (OBJECT_GROUPS, one class per object; seg_classes 8)")
+    palette_gain: Literal["frame", "clip"] = Field(
+        "frame", description="the source class means the palette's gain starts from: each frame's own (frame) or "
+        "the whole clip's (clip): a class's mean moves as objects occlude and leave it, and a gain that follows it "
+        "flickers")
     head: Literal["direct", "affine"] = Field(
         "direct", description="direct: the net paints the frame; affine: it predicts a per-pixel gain and offset "
         "applied to the (weighted) 'frame' control, so the source's edges pass through unless the net moves them")
@@ -194,20 +198,27 @@ class TransferNet(nn.Module):
         start = sum(self.config.channels_of(name) for name in before)
         return slice(start, start + self.config.channels_of(control))
 
-    def palette_maps(self, weighted: torch.Tensor, reference: torch.Tensor | None) -> torch.Tensor:
+    def source_means(self, weighted: torch.Tensor) -> torch.Tensor:
+        """Mean colour of the source's (weighted) frame per segmentation class, in [0, 1] units:
+        ``B x C x [T x] H x W`` -> ``B x classes x 3``, over every frame given."""
+        seg, frame = weighted[:, self._seg].flatten(2), (weighted[:, self._frame].flatten(2) + 1) / 2
+        return torch.einsum("bkn,bcn->bkc", seg, frame) / seg.sum(2).clamp(min=1e-6)[..., None]
+
+    def palette_maps(self, weighted: torch.Tensor, reference: torch.Tensor | None,
+                     source: torch.Tensor | None = None) -> torch.Tensor:
         """``B x 7 x H x W``: the reference's class colours over the (weighted) segmentation, where
-        they are known, and the gain per colour channel minus 1 that takes the source frame's
-        class mean to the reference's (in [0, 1] units, at most 4; 0 where unknown): what the
-        affine head's gain reads. A reference row without a palette (the global statistics
-        only, a clip with no segmentation) knows no class."""
-        seg, frame = weighted[:, self._seg], weighted[:, self._frame]
+        they are known, and the gain per colour channel minus 1 that takes the source's class
+        mean (``source``, ``B x classes x 3`` from ``source_means``; by default this frame's) to
+        the reference's (in [0, 1] units, at most 4; 0 where unknown): what the affine head's
+        gain reads. A reference row without a palette (the global statistics only, a clip with
+        no segmentation) knows no class."""
+        seg = weighted[:, self._seg]
         b, k = seg.shape[:2]
         known_rows = reference is not None and reference.shape[1] == self.config.reference_size
         palette = (torch.nan_to_num(reference[:, REFERENCE_FEATURES:]).to(seg).view(b, k, 4) if known_rows
                    else seg.new_zeros(b, k, 4))
         colours, known = palette[..., :3] * palette[..., 3:], palette[..., 3]
-        counts = seg.sum((2, 3)).clamp(min=1e-6)
-        source = torch.einsum("bkhw,bchw->bkc", seg, (frame + 1) / 2) / counts[..., None]  # [0, 1] units
+        source = self.source_means(weighted) if source is None else source.to(seg)
         gain = (((colours + 1) / 2) / source.clamp(min=0.02) - 1).clamp(-1, 3) * known[..., None]
         drawn = torch.einsum("bkhw,bkc->bchw", seg, colours)
         where = torch.einsum("bkhw,bk->bhw", seg, known)[:, None]
@@ -241,16 +252,18 @@ class TransferNet(nn.Module):
         return p + self.reference(torch.nan_to_num(look.to(p))) * given
 
     def step(self, controls: torch.Tensor, previous: torch.Tensor, prompts: torch.Tensor,
-             weights: torch.Tensor | None = None, reference: torch.Tensor | None = None) -> torch.Tensor:
+             weights: torch.Tensor | None = None, reference: torch.Tensor | None = None,
+             source: torch.Tensor | None = None) -> torch.Tensor:
         """One frame: controls ``B x C x H x W``, previous frame ``B x 3 x H x W`` in [-1, 1],
         prompts ``B``, weights ``B x n`` or ``B x n x H x W``, reference rows (see ``condition``)
-        or None -> frame ``B x 3 x H x W`` in [-1, 1]."""
+        or None, and for a palette model the source class means its gain starts from
+        (``palette_maps``; by default the frame's own) -> frame ``B x 3 x H x W`` in [-1, 1]."""
         m = self.config.multiple
         if controls.shape[-1] % m or controls.shape[-2] % m:
             raise ValueError(f"frame size {tuple(controls.shape[-2:])}: H and W must be multiples of {m}")
         p = self.condition(prompts, reference)
         weighted = self.weighted(controls, weights)
-        maps = self.palette_maps(weighted, reference) if self.config.palette else None
+        maps = self.palette_maps(weighted, reference, source) if self.config.palette else None
         h = self.conv_in(torch.cat([weighted, previous, *([maps] if maps is not None else [])], 1))
         skips = []
         for i, block in enumerate(self.down):
@@ -290,16 +303,23 @@ class TransferNet(nn.Module):
             per_frame = weights.repeat_interleave(t, 0)
         else:
             per_frame = None
+        clip_gain = self.config.palette and self.config.palette_gain == "clip"
+        if clip_gain:  # per-pixel weights shared by every frame (B x n x H x W) apply along T too
+            shared = weights is not None and weights.dim() == 4
+            source = self.source_means(self.weighted(controls, weights.unsqueeze(2) if shared else weights))
+        else:
+            source = None
         if previous is not None:
             shifted = torch.cat([torch.zeros_like(previous[:, :, :1]), previous[:, :, :-1]], 2)
             flat = lambda x: x.movedim(2, 1).reshape(b * t, x.shape[1], hh, ww)  # noqa: E731
             ref = None if reference is None else reference.repeat_interleave(t, 0)
-            out = self.step(flat(controls), flat(shifted), prompts.repeat_interleave(t), per_frame, ref)
+            out = self.step(flat(controls), flat(shifted), prompts.repeat_interleave(t), per_frame, ref,
+                            None if source is None else source.repeat_interleave(t, 0))
             return out.reshape(b, t, 3, hh, ww).movedim(1, 2)
         frames, prev = [], controls.new_zeros(b, 3, hh, ww)
         for i in range(t):
             w = None if per_frame is None else per_frame.reshape(b, t, *per_frame.shape[1:])[:, i]
-            prev = self.step(controls[:, :, i], prev, prompts, w, reference)
+            prev = self.step(controls[:, :, i], prev, prompts, w, reference, source)
             frames.append(prev)
         return torch.stack(frames, 2)
 
@@ -318,10 +338,11 @@ PRESETS: dict[str, TransferConfig] = {
     # small-frame whose output is a per-pixel gain and offset of the source's frame (head "affine").
     "small-affine": TransferConfig(name="small-affine", controls=ALL_CONTROLS, channels=(16, 32, 64), prompt_dim=32,
                                    groups=8, reference=True, head="affine"),
-    # small-affine also given the reference's mean colour per object (`palette`, `seg_groups` objects).
+    # small-affine also given the reference's mean colour per object (`palette`, `seg_groups` objects),
+    # its gain taken from the clip's class means (`palette_gain` clip).
     "small-palette": TransferConfig(name="small-palette", controls=ALL_CONTROLS, channels=(16, 32, 64), prompt_dim=32,
                                     groups=8, reference=True, head="affine", palette=True, seg_groups="objects",
-                                    seg_classes=OBJECT_CLASSES),
+                                    seg_classes=OBJECT_CLASSES, palette_gain="clip"),
 }
 
 

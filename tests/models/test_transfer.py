@@ -272,6 +272,39 @@ def test_a_new_palette_model_applies_the_palettes_gain_to_the_source():
         assert torch.allclose(left[:, 2], torch.full((2,), 0.5), atol=0.02)
 
 
+def test_a_clip_gain_is_one_gain_for_every_frame_of_the_clip():
+    """palette_gain clip: the source's class means come from the whole clip, so the gain does not
+    follow the frame's own mean as objects move (a frame-by-frame gain flickers); teacher-forced
+    and free-running passes use the same means."""
+    model = _palette_model()
+    clip = TransferNet(model.config.model_copy(update={"palette_gain": "clip"})).eval()
+    clip.load_state_dict(model.state_dict())
+    c = model.config
+    x, prompts = _segmented(model, frames=3), torch.tensor([3, 3])
+    frame = _channels(c, "frame")
+    x[:, frame, 1] = (x[:, frame, 1] + 1) * 0.5 - 1  # the middle frame's source is half as bright
+    palette = torch.zeros(2, c.seg_classes, 4)
+    palette[:, 1] = torch.tensor([0.2, -0.6, 0.0, 1.0])
+    row = torch.cat([reference_features(torch.zeros(2, 3, 1, 4, 4)), palette.flatten(1)], 1)
+    means = clip.source_means(x)
+    frame01 = (x[:, frame] + 1) / 2
+    assert torch.allclose(means[:, 1], frame01[..., :8].mean((2, 3, 4)), atol=1e-5)
+    per_frame = [model.palette_maps(x[:, :, t], row)[:, 4:, 0, 0] for t in range(3)]
+    steady = [model.palette_maps(x[:, :, t], row, means)[:, 4:, 0, 0] for t in range(3)]
+    assert not torch.allclose(per_frame[0], per_frame[1], atol=1e-3)  # the frame's own mean moved
+    assert torch.allclose(steady[0], steady[1]) and torch.allclose(steady[1], steady[2])
+    with torch.no_grad():
+        free = clip(x, prompts, reference=row)
+        forced = clip(x, prompts, previous=free, reference=row)
+        assert torch.allclose(free, forced, atol=1e-5)
+        assert not torch.allclose(free, model(x, prompts, reference=row), atol=1e-3)
+        # per-pixel weights shared by the frames (B x n x H x W) weigh the clip's means as each frame's
+        w = torch.rand(2, len(c.controls), 16, 16)
+        assert torch.allclose(clip(x, prompts, w, reference=row),
+                              clip(x, prompts, w[:, :, None].expand(-1, -1, 3, -1, -1), reference=row), atol=1e-5)
+    assert preset("small-palette").palette_gain == "clip" and TransferConfig().palette_gain == "frame"
+
+
 def test_a_palette_needs_references_and_the_frame_and_segmentation_controls():
     with pytest.raises(ValueError, match="palette needs"):
         TransferConfig(controls=ALL_CONTROLS, head="affine", palette=True)
