@@ -36,6 +36,10 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--frames", type=int, default=3, help="frames per training window")
     parser.add_argument("--eval-frames", type=int, default=8, help="frames of each clip generated for the PSNR")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (2 on the loaded 2-core machine ran 3 to 30 times slower)")
+    parser.add_argument("--temporal", type=float, default=TrainConfig().temporal,
+                        help="weight of the temporal loss (TrainConfig.temporal)")
+    parser.add_argument("--self-feed", type=float, default=TrainConfig().self_feed,
+                        help="chance a window's previous frames are the model's own (TrainConfig.self_feed)")
     parser.add_argument("--out", type=Path, default=None, help="checkpoint folder")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -51,7 +55,8 @@ def main(argv: list[str] | None = None) -> None:
     print(json.dumps({"held_out_psnr_source_as_is": {p.prompt: float(np.mean(psnr(as_is(p.frames), as_is(source[p.seed])).item()))
                                                      for p in held}}), flush=True)
     config = TrainConfig(preset=args.preset, steps=100_000, seconds=args.seconds, batch_size=args.batch,
-                         clip_frames=args.frames, threads=args.threads, log_every=20)
+                         clip_frames=args.frames, threads=args.threads, log_every=20, temporal=args.temporal,
+                         self_feed=args.self_feed)
     model = new_model(config)
     print(json.dumps({"held_out_psnr_before": evaluate(model, held, frames=args.eval_frames)}), flush=True)
     history = train_transfer(model, pairs, config, on_log=lambda r: print(json.dumps(r), flush=True))

@@ -38,6 +38,12 @@ CHECKPOINT_KEY = "transfer"
 DEFAULT_SIZE = 64  # make_pairs' size: a checkpoint whose config names none was trained at it
 
 
+def temporal_l1(out: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """L1 between the frame-to-frame changes of ``out`` and ``target`` (``B x C x T x H x W``):
+    zero where the output changes exactly as the target does, however far its colours are."""
+    return ((out[:, :, 1:] - out[:, :, :-1]) - (target[:, :, 1:] - target[:, :, :-1])).abs().mean()
+
+
 class TrainConfig(BaseModel):
     model_config = ConfigDict(frozen=True, extra="forbid")
 
@@ -52,6 +58,8 @@ class TrainConfig(BaseModel):
                                      "(models with reference conditioning)")
     palette_dropout: float = Field(0.3, ge=0, le=1, description="chance a reference's class colours are withheld "
                                    "(palette models)")
+    temporal: float = Field(0.0, ge=0, description="weight of the temporal loss: L1 between the output's and the "
+                            "target's frame-to-frame changes, so that what the model adds does not flicker")
     lr: float = Field(2e-3, gt=0)
     warmup_steps: int = Field(20, ge=0)
     min_lr_ratio: float = Field(0.05, ge=0, le=1)
@@ -199,6 +207,8 @@ def train_transfer(model: TransferNet, pairs: Sequence[PairClip], config: TrainC
                 previous = torch.where(own.to(device)[:, None, None, None, None], made, target)
             out = call(controls, prompts, weights, previous=previous, reference=references)
         loss = (out.float() - target).abs().mean()
+        if config.temporal and out.shape[2] > 1:
+            loss = loss + config.temporal * temporal_l1(out.float(), target)
         opt.zero_grad(set_to_none=True)
         loss.backward()
         torch.nn.utils.clip_grad_norm_(model.parameters(), 1.0)

@@ -12,7 +12,7 @@ from tasks.checkpoint_files import CheckpointError
 from models.transfer import ALL_CONTROLS, PROMPTS, REFERENCE_FEATURES, TransferNet, preset, reference_features
 from tasks.transfer.pairs import LOOKS, SEG_CLASSES, PairClip
 from tasks.transfer.train import (PairSet, TrainConfig, evaluate, frames_tensor, load_transfer, look_row, new_model,
-                                  pair_tensors, save_transfer, train_transfer)
+                                  pair_tensors, save_transfer, temporal_l1, train_transfer)
 
 TINT = {"nominal": (1.0, 1.0, 1.0), "dim": (0.3, 0.3, 0.3), "colour shift": (1.0, 0.5, 0.2)}
 
@@ -57,6 +57,20 @@ def test_same_seed_same_history():
     config = CONFIG.model_copy(update={"steps": 6, "log_every": 3})
     runs = [train_transfer(new_model(config), _pairs(), config) for _ in range(2)]
     assert [r["loss"] for r in runs[0]] == [r["loss"] for r in runs[1]]
+
+
+def test_the_temporal_loss_reads_frame_to_frame_change_only():
+    g = torch.Generator().manual_seed(0)
+    target = torch.rand(2, 3, 4, 8, 8, generator=g)
+    assert temporal_l1(target + 0.3, target) < 1e-6  # off in colour, changing as the target does
+    flicker = target.clone()
+    flicker[:, :, 2] += 0.2  # one frame brighter than its neighbours
+    assert temporal_l1(flicker, target) == pytest.approx(0.4 / 3, abs=1e-6)  # 0.2 in and out of it, of 3 changes
+    config = CONFIG.model_copy(update={"steps": 6, "log_every": 3})
+    plain = train_transfer(new_model(config), _pairs(), config)
+    weighted = train_transfer(new_model(config), _pairs(), config.model_copy(update={"temporal": 1.0}))
+    assert [r["loss"] for r in weighted] != [r["loss"] for r in plain]
+    assert TrainConfig().temporal == 0.0
 
 
 def test_batches_drop_controls_and_keep_windows_aligned():
