@@ -286,7 +286,11 @@ class TransferNet(nn.Module):
         if weights is not None:
             w = weights.to(frame01)[:, self.config.controls.index("frame")].unsqueeze(1)
             frame01 = frame01 * w.reshape(*w.shape, *([1] * (frame01.dim() - w.dim())))
-        return ((1 + gain) * frame01 + offset).clamp(0, 1) * 2 - 1
+        out01 = (1 + gain) * frame01 + offset
+        if torch.is_grad_enabled():  # the clip's value, the identity's gradient: a pixel pushed out of
+            # [0, 1] can come back (a plain clamp's zero gradient left a dark look black for good)
+            return (out01 + (out01.clamp(0, 1) - out01).detach()) * 2 - 1
+        return out01.clamp(0, 1) * 2 - 1
 
     def forward(self, controls: torch.Tensor, prompts: torch.Tensor, weights: torch.Tensor | None = None,
                 previous: torch.Tensor | None = None, reference: torch.Tensor | None = None) -> torch.Tensor:

@@ -254,6 +254,22 @@ def test_a_palette_model_draws_the_references_class_colours_over_the_segmentatio
         model(x, prompts, reference=torch.zeros(2, 5))
 
 
+def test_an_affine_output_pushed_past_black_still_learns():
+    """The affine head clips to [0, 1]; in training the gradient passes the clip, so a look
+    pushed below black (all pixels clipped) is not stuck there."""
+    config = preset("tiny").model_copy(update={"controls": ALL_CONTROLS, "reference": True, "head": "affine"})
+    model = TransferNet(config)
+    with torch.no_grad():
+        model.conv_out.bias[3:] = -5.0  # offset far below black
+    x, prompts = _controls(model), torch.tensor([1, 1])
+    out = model(x, prompts, previous=torch.zeros(2, 3, 3, 16, 16))
+    assert torch.all(out == -1)  # black: every pixel clipped
+    (out - 0.5).abs().mean().backward()
+    assert model.conv_out.bias.grad[3:].abs().min() > 0  # and the offset is still told to rise
+    with torch.no_grad():
+        assert torch.equal(model(x, prompts), out.detach())  # the same values without gradients
+
+
 def test_a_new_palette_model_applies_the_palettes_gain_to_the_source():
     config = preset("tiny").model_copy(update={"controls": ALL_CONTROLS, "reference": True, "head": "affine",
                                                "palette": True})
