@@ -30,6 +30,8 @@ class TrainTransferParams(DeviceParams):
                              "small-ref | small-frame | small-affine | small-palette | tiny")
     steps: Steps = Field(200, description="training steps")
     seconds: float | None = Field(None, gt=0, description="training-time budget: stops at --steps or this")
+    temporal: float = Field(0.0, ge=0, le=100, description="weight of the temporal loss (frame-to-frame changes as "
+                            "the target's; 1 kept small-palette's flicker within 1.2x the source's)")
     size: Side = Field(64, description="pairs are made at size x size (and so is every transfer with the model)")
     camera: str | None = Field(None, description="the camera pairs are made of (default: the first world-mounted)")
     cli_arguments = ("manifest",)

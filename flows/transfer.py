@@ -41,20 +41,21 @@ write_video = task(write_mp4, name="write-transfer-video", retries=1, cache_poli
 
 @flow(name="train-transfer", log_prints=True)
 def train_transfer(manifest: str, seeds: str = "4", preset_name: str = "small", steps: Steps = 200,
-                   seconds: float | None = None, size: Side = 64, camera: str | None = None,
+                   seconds: float | None = None, temporal: float = 0.0, size: Side = 64, camera: str | None = None,
                    device: str | None = None) -> dict:
     """Train transfer model ``preset_name`` on ``manifest``'s pairs (each seed of ``seeds`` in
-    every look, ``camera`` at ``size`` x ``size``) for ``steps`` or ``seconds``, on ``device``
-    (``tasks.device``: it enters no id)."""
+    every look, ``camera`` at ``size`` x ``size``) for ``steps`` or ``seconds``, with the temporal
+    loss at ``temporal``, on ``device`` (``tasks.device``: it enters no id)."""
     checks = TrainTransferParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
     root = settings.data_root.resolve()
     scenario = load_manifest(Path(manifest))
     cam = checks.check_scenario(scenario)
     seed_ids, model_config = seed_list(seeds), preset(preset_name)
-    config = train.TrainConfig(preset=preset_name, steps=steps, seconds=seconds, threads=min(2, torch.get_num_threads()))
+    config = train.TrainConfig(preset=preset_name, steps=steps, seconds=seconds, temporal=temporal,
+                               threads=min(2, torch.get_num_threads()))
     params = {"manifest": manifest, "seeds": list(seed_ids), "preset": preset_name, "steps": steps,
-              "seconds": seconds, "size": size, "camera": cam}
+              "seconds": seconds, "temporal": temporal, "size": size, "camera": cam}
     with recorded_run("train-transfer", settings, scenario, source_uri=manifest, params=params) as run:
         key = stable_id(STAGE_TRAIN, content_hash(model_config), content_hash(config), scenario.sha256, cam, str(size),
                         *map(str, seed_ids))

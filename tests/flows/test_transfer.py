@@ -154,3 +154,10 @@ def test_train_transfer_records_a_transfer_model_that_transfer_runs(world):
     assert by_id.exit_code == 0 and "0 clips written, 1 done before" in by_id.output, by_id.output
     assert weights.parent.name == model_id
 
+    temporal = runner.invoke(app, [*args, "--temporal", "1"])  # the temporal loss is another training
+    assert temporal.exit_code == 0 and "train PSNR" in temporal.output, temporal.output
+    folders = {p.parent.name for p in (root / "checkpoints").glob("transfer-tiny/*/model.safetensors")}
+    assert len(folders) == 2 and model_id in folders
+    assert json.loads((root / "checkpoints" / "transfer-tiny" / (folders - {model_id}).pop() / "config.json")
+                      .read_text())["train"]["temporal"] == 1.0
+
