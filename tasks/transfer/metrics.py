@@ -5,7 +5,7 @@ segmentations F x H x W integer labels. Each function's docstring gives its defi
 `bench/transfer.py` applies them to held-out simulator pairs (docs/transfer.md).
 
 - Edges: `clip_edges` (Canny with the controls' threshold rule, one pair per clip, at the
-  source's exposure) and
+  source's exposure), `outlines` (where the segmentation changes class: object outlines) and
   `edge_f` (boundary precision, recall and F with a one-to-one match within a tolerance, as
   the BSDS boundary benchmark counts them).
 - Package position: `package_agreement` of two per-frame tracks
@@ -85,6 +85,15 @@ def edge_f(pred: np.ndarray, ref: np.ndarray, tolerance: float = EDGE_TOLERANCE_
     if n_pred == 0 and n_ref == 0:
         return {"precision": 1.0, "recall": 1.0, "f": 1.0, "matched": 0, "pred": 0, "ref": 0}
     return {"matched": matched, "pred": n_pred, "ref": n_ref, **f_from_counts(matched, n_pred, n_ref)}
+
+
+def outlines(seg: np.ndarray, width: int = 2) -> np.ndarray:
+    """F x H x W labels -> F x H x W bool: pixels within ``width`` px (a square window) of a
+    pixel of another class, the objects' outlines. Edges inside one object (a texture, a
+    checker) are not on them; `edge_f` of two edge maps both masked by them scores the
+    structure a look keeps apart from the textures it adds or removes."""
+    kernel = np.ones((2 * width + 1, 2 * width + 1), np.uint8)
+    return np.stack([cv2.dilate(s, kernel) != cv2.erode(s, kernel) for s in seg.astype(np.uint8)])
 
 
 def f_from_counts(matched: int, n_pred: int, n_ref: int) -> dict[str, float]:

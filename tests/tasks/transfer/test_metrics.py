@@ -7,7 +7,7 @@ import pytest
 
 from tasks.transfer.metrics import (adjusted_rand_index, grey_median, backward_flows, clip_edges, colour_cluster_score,
                                     colour_distance, edge_f, frechet_distance, kmeans, matched_edges,
-                                    package_agreement, region_colour_score, warp_error)
+                                    outlines, package_agreement, region_colour_score, warp_error)
 
 
 def scene(frames: int = 6, size: int = 32, step: int = 1) -> tuple[np.ndarray, np.ndarray]:
@@ -36,6 +36,19 @@ def test_edge_f_of_a_clip_with_itself_is_one_and_falls_when_shifted():
     far = edge_f(np.roll(edges, (3, 3), axis=(1, 2)), edges)
     assert far["f"] < 0.5  # only crossings of shifted and unshifted outlines still match
     assert edge_f(np.zeros_like(edges), edges)["f"] == 0.0
+
+
+def test_edges_on_the_outlines_ignore_a_texture_inside_an_object():
+    clip, seg = scene()
+    textured = clip.copy()
+    textured[:, :7, ::4] = (60, 60, 50)  # stripes on the table above the objects
+    mask = outlines(seg)
+    assert mask.any() and not mask[:, :7].any()  # only where the classes meet
+    src, out = clip_edges(clip), clip_edges(textured)
+    assert edge_f(out, src)["f"] < 0.8  # every stripe is an edge the source lacks
+    assert edge_f(out & mask, src & mask)["f"] == pytest.approx(1.0)  # the objects' outlines are all kept
+    moved = np.roll(textured, (2, 2), axis=(1, 2))
+    assert edge_f(clip_edges(moved) & mask, src & mask)["f"] < 0.5  # outlines moved: structure lost
 
 
 def test_edge_matching_is_one_to_one():
