@@ -144,7 +144,8 @@ def main(argv: list[str] | None = None) -> None:
 
     rows: dict[str, dict] = {}
     for look in looks:
-        acc = {k: [] for k in ("out_edges", "true_edges", "out_outline", "true_outline", "out_pkg", "true_pkg", "out_cl", "true_cl", "src_cl", "out_rg", "true_rg", "src_rg",
+        acc = {k: [] for k in ("out_edges", "true_edges", "out_outline", "true_outline", "out_pkg", "true_pkg",
+                                "out_cl", "true_cl", "src_cl", "out_rg", "true_rg", "src_rg",
                                 "out_fl", "true_fl", "src_fl", "out_frames", "true_frames", "src_frames")}
         for pair in (p for p in pairs if p.prompt == look):
             s = per_seed[pair.seed]
@@ -166,8 +167,8 @@ def main(argv: list[str] | None = None) -> None:
                 acc[f"{name}_rg"].append(rg)
                 acc[f"{name}_fl"].append(fl)
                 acc[f"{name}_frames"].append(frames)
-                record[name] = {"edge_f": round(e["f"], 4), "outline_edge_f": round(on["f"], 4), "edge_precision": round(e["precision"], 4),
-                                "edge_recall": round(e["recall"], 4), "package_within_2px": pkg["share"],
+                record[name] = {"edge_f": round(e["f"], 4), "outline_edge_f": round(on["f"], 4),
+                                "edge_precision": round(e["precision"], 4), "edge_recall": round(e["recall"], 4), "package_within_2px": pkg["share"],
                                 "package_lost": pkg["lost"], "package_median_px": pkg["median_px"],
                                 "region_colours": round(rg, 4), "kmeans_ari": round(cl, 4), "flicker": round(fl, 3)}
             acc["src_cl"].append(s["clusters"])
