@@ -19,7 +19,7 @@ draw seeds in order) and prints the smallest budget at which each arm reaches 0.
 that failed, pooled over repeats.
 
     .venv/bin/python bench/loop_targeting.py [--family push] [--start-episodes 20] [--steps 1500]
-        [--budget 12 [24 ...]] [--worst 2] [--repeats 3] [--per-cell 8] [--post-steps 1000]
+        [--budget 12 [24 ...]] [--worst 2] [--repeats 3] [--per-cell 8] [--post-steps 1000] [--start-seed 0]
 """
 
 from __future__ import annotations
@@ -85,6 +85,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--per-cell", type=int, default=8)
     parser.add_argument("--post-steps", type=int, default=1000)
+    parser.add_argument("--start-seed", type=int, default=0, help="training seed of the starting policy")
     args = parser.parse_args()
     started = time.perf_counter()
     path, cameras = FAMILIES[args.family]
@@ -92,13 +93,15 @@ def main() -> None:
     spec_obs = ObservationSpec(cameras=cameras, image_size=64)
     seeds = list(range(parent.seed + TRAIN, parent.seed + TRAIN + args.start_episodes))
     demos = vision.collect(parent, seeds, spec_obs)
-    model, _ = vision_train.train_vision(demos, spec_obs, bc.TrainConfig(steps=args.steps, batch_size=64))
+    config = bc.TrainConfig(steps=args.steps, batch_size=64, seed=args.start_seed)
+    model, _ = vision_train.train_vision(demos, spec_obs, config)
     start = vision.VisionPolicy(model, spec_obs, {"manifest_hash": parent.sha256, "train_seeds": seeds})
     spec, variants = panel(parent, args.per_cell)
     grid = bench_grid(parent, args.per_cell)
     before = evaluate(spec, variants, start)
     print(f"# loop_targeting ({time.strftime('%Y-%m-%d')}): {parent.name}, vision policy on {', '.join(cameras)}; "
-          f"start: {args.start_episodes} demonstrations, {args.steps} steps; budget {args.budget} per arm, "
+          f"start: {args.start_episodes} demonstrations, {args.steps} steps (seed {args.start_seed}); "
+          f"budget {args.budget} per arm, "
           f"{args.repeats} repeats, post-training {args.post_steps} steps; {args.per_cell} panel seeds per cell")
     failed = [c for c in ORDER if np.mean(before[c]) < 0.9]
     reached: dict[str, int | None] = {arm: None for arm in ("targeted", "nominal", "uniform")}
