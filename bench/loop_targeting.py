@@ -149,12 +149,27 @@ def run_arms(args, parent, start, spec, variants, grid, before, budget: int) -> 
         print("| " + " | ".join(row) + " |")
     failed = [c for c in ORDER if np.mean(before[c]) < 0.9]
     if failed:
-        gains = {arm: np.mean(sum((after[arm][c] for c in failed), [])) - np.mean(sum((before[c] for c in failed), []))
-                 for arm in after}
-        print(f"\ncells that failed (before < 0.9): {', '.join(failed)}; gain there: "
-              + ", ".join(f"{arm} {g:+.2f}" for arm, g in gains.items())
-              + f"; targeted minus the better control {gains['targeted'] - max(gains['nominal'], gains['uniform']):+.2f}")
+        print("\n" + "\n".join(failed_summary(before, after, failed, rng)))
     return after
+
+
+def failed_summary(before, after, failed: list[str], rng: np.random.Generator) -> list[str]:
+    """Lines on the cells that failed: each arm's gain there, targeted minus the better control,
+    and each arm's pooled success there after with a bootstrap 95% interval."""
+    def pooled(cells):
+        return sum((cells[c] for c in failed), [])
+
+    gains = {arm: np.mean(pooled(cells)) - np.mean(pooled(before)) for arm, cells in after.items()}
+    better = max(("nominal", "uniform"), key=lambda arm: gains[arm])
+    spans = {arm: bootstrap(pooled(cells), rng) for arm, cells in after.items()}
+    apart = "apart" if spans["targeted"][0] > spans[better][1] else "overlap"
+    return [f"cells that failed (before < 0.9): {', '.join(failed)}; gain there: "
+            + ", ".join(f"{arm} {g:+.2f}" for arm, g in gains.items())
+            + f"; targeted minus the better control ({better}) {gains['targeted'] - gains[better]:+.2f}",
+            "success there after, pooled: "
+            + ", ".join(f"{arm} {np.mean(pooled(cells)):.2f} [{spans[arm][0]:.2f}, {spans[arm][1]:.2f}]"
+                        for arm, cells in after.items())
+            + f"; the intervals of targeted and {better} {apart}"]
 
 
 if __name__ == "__main__":
