@@ -168,7 +168,8 @@ def main(argv: list[str] | None = None) -> None:
                 acc[f"{name}_fl"].append(fl)
                 acc[f"{name}_frames"].append(frames)
                 record[name] = {"edge_f": round(e["f"], 4), "outline_edge_f": round(on["f"], 4),
-                                "edge_precision": round(e["precision"], 4), "edge_recall": round(e["recall"], 4), "package_within_2px": pkg["share"],
+                                "edge_precision": round(e["precision"], 4), "edge_recall": round(e["recall"], 4),
+                                "package_within_2px": pkg["share"],
                                 "package_lost": pkg["lost"], "package_median_px": pkg["median_px"],
                                 "region_colours": round(rg, 4), "kmeans_ari": round(cl, 4), "flicker": round(fl, 3)}
             acc["src_cl"].append(s["clusters"])
