@@ -25,12 +25,12 @@ def seed_list(text: str) -> tuple[int, ...]:
 
 class TrainTransferParams(DeviceParams):
     manifest: str = Field(description="scenario manifest YAML whose simulator pairs (docs/transfer.md) train the model")
-    seeds: str = Field("4", description="N (seeds 0..N-1) or a range A-B: each seed simulated in every look")
-    preset_name: str = Field("small", description="transfer model preset (models/transfer.py PRESETS): small | "
+    seeds: str = Field("9", description="N (seeds 0..N-1) or a range A-B: each seed simulated in every look")
+    preset_name: str = Field("small-palette", description="transfer model preset (models/transfer.py PRESETS): small | "
                              "small-ref | small-frame | small-affine | small-palette | tiny")
-    steps: Steps = Field(200, description="training steps")
+    steps: Steps = Field(2000, description="training steps")
     seconds: float | None = Field(None, gt=0, description="training-time budget: stops at --steps or this")
-    temporal: float = Field(0.0, ge=0, le=100, description="weight of the temporal loss (frame-to-frame changes as "
+    temporal: float = Field(1.0, ge=0, le=100, description="weight of the temporal loss (frame-to-frame changes as "
                             "the target's; 1 kept small-palette's flicker within 1.2x the source's)")
     size: Side = Field(64, description="pairs are made at size x size (and so is every transfer with the model)")
     camera: str | None = Field(None, description="the camera pairs are made of (default: the first world-mounted)")

@@ -40,8 +40,8 @@ write_video = task(write_mp4, name="write-transfer-video", retries=1, cache_poli
 
 
 @flow(name="train-transfer", log_prints=True)
-def train_transfer(manifest: str, seeds: str = "4", preset_name: str = "small", steps: Steps = 200,
-                   seconds: float | None = None, temporal: float = 0.0, size: Side = 64, camera: str | None = None,
+def train_transfer(manifest: str, seeds: str = "9", preset_name: str = "small-palette", steps: Steps = 2000,
+                   seconds: float | None = None, temporal: float = 1.0, size: Side = 64, camera: str | None = None,
                    device: str | None = None) -> dict:
     """Train transfer model ``preset_name`` on ``manifest``'s pairs (each seed of ``seeds`` in
     every look, ``camera`` at ``size`` x ``size``) for ``steps`` or ``seconds``, with the temporal

@@ -51,7 +51,7 @@ class TrainConfig(BaseModel):
     steps: int = Field(200, ge=1)
     seconds: float | None = Field(None, gt=0, description="training-time budget; stops at steps or this")
     batch_size: int = Field(8, ge=1)
-    clip_frames: int = Field(4, ge=1)
+    clip_frames: int = Field(3, ge=1)
     self_feed: float = Field(0.25, ge=0, le=1, description="chance a window's previous frames are the model's own")
     control_dropout: float = Field(0.2, ge=0, le=1, description="chance each control gets weight 0 in a window")
     reference_dropout: float = Field(0.3, ge=0, le=1, description="chance a window has no reference clip "

@@ -154,10 +154,12 @@ def test_train_transfer_records_a_transfer_model_that_transfer_runs(world):
     assert by_id.exit_code == 0 and "0 clips written, 1 done before" in by_id.output, by_id.output
     assert weights.parent.name == model_id
 
-    temporal = runner.invoke(app, [*args, "--temporal", "1"])  # the temporal loss is another training
+    temporal = runner.invoke(app, [*args, "--temporal", "0"])  # without the temporal loss: another training
     assert temporal.exit_code == 0 and "train PSNR" in temporal.output, temporal.output
     folders = {p.parent.name for p in (root / "checkpoints").glob("transfer-tiny/*/model.safetensors")}
     assert len(folders) == 2 and model_id in folders
-    assert json.loads((root / "checkpoints" / "transfer-tiny" / (folders - {model_id}).pop() / "config.json")
-                      .read_text())["train"]["temporal"] == 1.0
+    train_config = lambda folder: json.loads((root / "checkpoints" / "transfer-tiny" / folder / "config.json")  # noqa: E731
+                                             .read_text())["train"]
+    assert train_config(model_id)["temporal"] == 1.0 and train_config(model_id)["clip_frames"] == 3  # the defaults
+    assert train_config((folders - {model_id}).pop())["temporal"] == 0.0
 
