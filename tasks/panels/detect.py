@@ -7,8 +7,9 @@ way the simulator would. Shipped: ``push_to_goal``: the green goal disc in the f
 package resting on it; on rendered frames the package is also tracked by its colours from
 where it starts, placed on the table through the camera's pinhole model, and a track ending
 outside the tolerance vetoes a partly covered disc (a near miss). A shaking camera is undone by
-phase correlation, dim light by one gain for the clip. Other targets return an undecided
-verdict (success None) rather than a guess.
+phase correlation, dim light by one gain for the clip. ``lift_clear`` (the bin pick): whether
+the package left its place and is seen lifted by the lift height (`detect_lift`). Other targets
+(``reach_goal``) return an undecided verdict (success None) rather than a guess.
 
 Versions 5 and 6 (undecided within the tracker's precision of the tolerance; a covered disc
 pixel is one that changed colour), on bench/vision_panels.py's push panel (7 cells x 8 seeds,
@@ -50,7 +51,8 @@ from schemas.manifest import Camera, Evaluation
 # of the tolerance is undecided: neither cue can tell a millimetre's near miss from a success.
 # 6: on rendered frames a disc pixel is visible only if it also keeps its first-frame colour
 # (a package the appearance stressor made green covered the disc unseen).
-DETECTOR_VERSION = 6
+# 7: lift_clear is judged too (`detect_lift.judge_lift`); push verdicts are unchanged.
+DETECTOR_VERSION = 7
 COVERED = 0.85  # below this share of the goal disc still visible at the end, it is covered
 TABLE_TOP = 0.10  # tasks/sim/scene.py: the push table's top (m)
 PACKAGE_HALF = (0.04, 0.03, 0.03)  # tasks/sim/scene.py: the package's half sizes (m)
@@ -330,4 +332,10 @@ def judge_frames(frames: np.ndarray, camera: Camera, evaluation: Evaluation, pac
     the real first frame, when ``frames`` are generated from it (see `judge_push`)."""
     if evaluation.target == "push_to_goal":
         return judge_push(frames, camera, evaluation, package_start, reference)
+    if evaluation.target == "lift_clear":
+        if reference is not None:  # generated frames drift in colour, which its "left its place" test reads
+            return Verdict(None, "the lift detector is measured on rendered frames only, not on generated ones")
+        from tasks.panels.detect_lift import judge_lift  # (it builds on this module's helpers)
+
+        return judge_lift(frames, camera, evaluation, package_start)
     return Verdict(None, f"no frame detector for target {evaluation.target!r} yet")

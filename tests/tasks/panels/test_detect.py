@@ -39,9 +39,9 @@ def test_push_verdict_from_frames_matches_the_simulator(seed):
 
 
 def test_undecided_without_a_detector_or_a_visible_goal():
-    bin_pick = load(MANIFESTS / "bin_pick_dim_forklift.yaml")
+    aisle = load(MANIFESTS / "mobile_rig_aisle.yaml")  # reach_goal: no frame detector
     frames = np.zeros((5, 128, 128, 3), np.uint8)
-    assert judge_frames(frames, bin_pick.cameras[0], bin_pick.evaluation, np.zeros(3)).success is None
+    assert judge_frames(frames, aisle.cameras[0], aisle.evaluation, np.zeros(3)).success is None
     dark = judge_frames(frames, PUSH.cameras[0], PUSH.evaluation, np.array([0.45, -0.14, 0.13]))
     assert dark.success is None and "goal marker not found" in dark.reason
 
