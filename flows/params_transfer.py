@@ -26,8 +26,8 @@ def seed_list(text: str) -> tuple[int, ...]:
 class TrainTransferParams(DeviceParams):
     manifest: str = Field(description="scenario manifest YAML whose simulator pairs (docs/transfer.md) train the model")
     seeds: str = Field("9", description="N (seeds 0..N-1) or a range A-B: each seed simulated in every look")
-    preset_name: str = Field("small-palette", description="transfer model preset (models/transfer.py PRESETS): small | "
-                             "small-ref | small-frame | small-affine | small-palette | tiny")
+    preset_name: str = Field("small-palette", description="transfer model preset (models/transfer.py PRESETS): "
+                             "small-palette | small | small-ref | small-frame | small-affine | tiny")
     steps: Steps = Field(2000, description="training steps")
     seconds: float | None = Field(None, gt=0, description="training-time budget: stops at --steps or this")
     temporal: float = Field(1.0, ge=0, le=100, description="weight of the temporal loss (frame-to-frame changes as "

@@ -24,7 +24,7 @@ where it rested, its lowest corner above the bin's rim, touching only the robot.
 
 Measured 2026-11-27 against the simulator on `bin_pick` episodes of every cell of
 `bench/vision_panels.py`'s grid (front camera, 128 px); the figures are in docs/evaluation.md
-("Stressors bite a policy that sees"). ``LIFT_PRECISION_M`` is the 90th percentile of the lift
+("The frame detector judges lifts too"). ``LIFT_PRECISION_M`` is the 90th percentile of the lift
 reading's error (0.094 m) on the 54 scripted episodes at seeds 30000-30003 whose package was
 found lifted or moved; the vision policy's successful lifts of 0.108-0.138 m read 0.0 to 0.13.
 """
@@ -165,7 +165,7 @@ def judge_lift(frames: np.ndarray, camera: Camera, evaluation: Evaluation, packa
     palette = package_palette(frames[0], start_px, half_px)
     rows, cols = np.mgrid[0:h, 0:w]
     patch = np.hypot(cols - start_px[0], rows - start_px[1]) <= max(1.0, 0.8 * half_px)
-    mine = _colour_hits(frames[0], palette, patch) if len(palette) else patch & False
+    mine = _colour_hits(frames[0], palette, patch) if len(palette) else np.zeros_like(patch)
     if mine.sum() < 3:
         return detect.Verdict(None, "package not told from its surroundings where it starts")
     r = np.hypot(cols - start_px[0], rows - start_px[1])
