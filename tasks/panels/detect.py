@@ -97,11 +97,16 @@ def project(camera: Camera, points: np.ndarray) -> np.ndarray:
     return np.column_stack([w / 2 + f * local[:, 0] / depth, h / 2 - f * local[:, 1] / depth])
 
 
-def on_plane(camera: Camera, pixel: np.ndarray, z: float) -> np.ndarray:
-    """The world point at height z seen at ``pixel`` (column, row)."""
+def view_ray(camera: Camera, pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(camera position, world direction) of the ray seen at ``pixel`` (column, row)."""
     pos, rot = camera_axes(camera)
     f, (w, h) = focal_px(camera), camera.resolution
-    ray = rot @ np.array([(pixel[0] - w / 2) / f, -(pixel[1] - h / 2) / f, -1.0])
+    return pos, rot @ np.array([(pixel[0] - w / 2) / f, -(pixel[1] - h / 2) / f, -1.0])
+
+
+def on_plane(camera: Camera, pixel: np.ndarray, z: float) -> np.ndarray:
+    """The world point at height z seen at ``pixel`` (column, row)."""
+    pos, ray = view_ray(camera, pixel)
     return pos + ray * (z - pos[2]) / ray[2]
 
 
@@ -220,6 +225,14 @@ def _palette(frames: np.ndarray, start: np.ndarray, half_px: float, shift: np.nd
     return first[changed] if changed.sum() >= max(3, 0.2 * len(first)) else first
 
 
+def palette_hits(frame: np.ndarray, palette: np.ndarray, mask: np.ndarray, tolerance: float = 28.0) -> np.ndarray:
+    """H x W bool: the pixels of ``mask`` within ``tolerance`` (RGB distance) of a palette colour."""
+    out = np.zeros(frame.shape[:2], bool)
+    pix = frame[mask].astype(np.float32)
+    out[mask] = np.min(np.linalg.norm(pix[:, None, :] - palette[None], axis=2), axis=1) < tolerance
+    return out
+
+
 def _track(frames: np.ndarray, start: np.ndarray, half_px: float, palette: np.ndarray) -> tuple[np.ndarray, int]:
     """Follow the package from ``start`` by its colours; returns its last seen centre and in
     how many frames it was seen.
@@ -238,9 +251,7 @@ def _track(frames: np.ndarray, start: np.ndarray, half_px: float, palette: np.nd
     at, seen = start.astype(float), 0
     for frame in frames:
         near = np.hypot(cols - at[0], rows - at[1]) <= window
-        pix = frame[near].astype(np.float32)
-        hit = np.zeros((h, w), bool)
-        hit[near] = np.min(np.linalg.norm(pix[:, None, :] - palette[None], axis=2), axis=1) < 28
+        hit = palette_hits(frame, palette, near)
         labels, n = ndimage.label(hit)
         sizes = ndimage.sum_labels(hit, labels, range(1, n + 1)) if n else np.zeros(0)
         if n and sizes.max() >= need:

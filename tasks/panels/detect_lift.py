@@ -51,12 +51,6 @@ SETTLED = 5  # the last sightings whose lifts must agree (within LIFT_PRECISION_
 SHAKE = 0.04  # share of the width a shaking camera may move the picture between two frames
 
 
-def _ray(camera: Camera, pixel: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    pos, rot = detect.camera_axes(camera)
-    f, (w, h) = detect.focal_px(camera), camera.resolution
-    return pos, rot @ np.array([(pixel[0] - w / 2) / f, -(pixel[1] - h / 2) / f, -1.0])
-
-
 def _area(camera: Camera, point: np.ndarray) -> float:
     """Expected pixel area of the package at ``point`` (one long side face, as a side view shows it)."""
     f = detect.focal_px(camera)
@@ -72,13 +66,12 @@ def lift_seen(camera: Camera, pixel: np.ndarray, start: np.ndarray,
     read 0.0 to 0.13 m). Nor does a blob no larger than ``GROUND_MAX`` times a package resting where
     the ray meets the floor outside the bin: a package knocked out and one lifted but half
     hidden by the gripper look alike."""
-    pos, ray = _ray(camera, pixel)
+    pos, ray = detect.view_ray(camera, pixel)
     s = float((start[:2] - pos[:2]) @ ray[:2] / max(float(ray[:2] @ ray[:2]), 1e-12))
     point = pos + s * ray
     lift, area = float(point[2] - start[2]), _area(camera, point)
     if ray[2] < -1e-9:
-        floor_z = start[2] - BIN_FLOOR  # a package resting on the floor outside the bin sits this much lower
-        floor = pos + ray * (floor_z - pos[2]) / ray[2]
+        floor = detect.on_plane(camera, pixel, start[2] - BIN_FLOOR)  # resting outside the bin sits this much lower
         if np.all(np.abs(floor[:2] - BIN_CENTRE) <= BIN_INNER + LIFT_PRECISION_M):
             return None, area  # in the bin, or near enough that a low lift looks the same
         if size is not None and size <= GROUND_MAX * _area(camera, floor):
@@ -121,32 +114,24 @@ def stayed_share(frames: np.ndarray, mine: np.ndarray, around: np.ndarray, reach
     return float(np.mean(moved(mine, dy, dx) < SAME))
 
 
-def _colour_hits(frame: np.ndarray, palette: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    out = np.zeros(frame.shape[:2], bool)
-    pix = frame[mask].astype(np.float32)
-    out[mask] = np.min(np.linalg.norm(pix[:, None, :] - palette[None], axis=2), axis=1) < COLOUR
-    return out
-
-
 def _lift_at(frame: np.ndarray, first: np.ndarray, palette: np.ndarray, camera: Camera,
              start: np.ndarray) -> tuple[bool, float | None]:
     """(found, lift) of the package in one frame, from the largest changed blob of its colours
     and size; the lift is None where resting and lifted cannot be told apart (`lift_seen`)."""
     h, w = frame.shape[:2]
     moved = np.linalg.norm(frame.astype(np.float32) - first.astype(np.float32), axis=2) > SAME
-    hit = _colour_hits(frame, palette, moved)
+    hit = detect.palette_hits(frame, palette, moved, COLOUR)
     labels, n = ndimage.label(hit)
     if not n:
         return False, None
-    rows, cols = np.mgrid[0:h, 0:w]
     sizes = ndimage.sum_labels(hit, labels, range(1, n + 1))
     boxes = ndimage.find_objects(labels)
     for k in np.argsort(sizes)[::-1]:
         top, left = boxes[k][0], boxes[k][1]
         if top.start == 0 or left.start == 0 or top.stop == h or left.stop == w:
             continue  # it runs out of the picture: an arm link coming into view, not a package in it
-        blob = labels == k + 1
-        lift, area = lift_seen(camera, np.array([cols[blob].mean(), rows[blob].mean()]), start, float(sizes[k]))
+        row, col = ndimage.center_of_mass(hit, labels, k + 1)
+        lift, area = lift_seen(camera, np.array([col, row]), start, float(sizes[k]))
         if SIZE_RANGE[0] * area <= sizes[k] <= SIZE_RANGE[1] * area:
             return True, lift
     return False, None
@@ -164,11 +149,11 @@ def judge_lift(frames: np.ndarray, camera: Camera, evaluation: Evaluation, packa
     half_px = min(detect.PACKAGE_HALF[:2]) * detect.focal_px(camera) / detect.depth(camera, start)
     palette = package_palette(frames[0], start_px, half_px)
     rows, cols = np.mgrid[0:h, 0:w]
-    patch = np.hypot(cols - start_px[0], rows - start_px[1]) <= max(1.0, 0.8 * half_px)
-    mine = _colour_hits(frames[0], palette, patch) if len(palette) else np.zeros_like(patch)
+    r = np.hypot(cols - start_px[0], rows - start_px[1])
+    patch = r <= max(1.0, 0.8 * half_px)
+    mine = detect.palette_hits(frames[0], palette, patch, COLOUR) if len(palette) else np.zeros_like(patch)
     if mine.sum() < 3:
         return detect.Verdict(None, "package not told from its surroundings where it starts")
-    r = np.hypot(cols - start_px[0], rows - start_px[1])
     around = (r >= RING[0] * half_px) & (r <= RING[1] * half_px)
     stayed = stayed_share(frames, mine, around, max(1, round(SHAKE * w)))
     if stayed >= STAYED:
