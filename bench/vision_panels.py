@@ -11,8 +11,13 @@ training run used. It prints per cell the simulator's success of each policy wit
 simulator over every episode rendered, policy inference frames per second and training steps
 per second on one thread.
 
+``--tokenizer FAMILY=FOLDER`` (issue 28, point 1's second option) adds, for that family, vision
+policies that see through that tokenizer checkpoint's encoder (frozen; ``--layers``: its
+latents, its last hidden features, or both), trained on the same demonstrations with the same
+steps and DAgger rounds, side by side with the CNN on the same panel.
+
     .venv/bin/python bench/vision_panels.py [--families push,pick] [--episodes 20] [--per-cell 10]
-        [--steps 3000] [--dagger 0]
+        [--steps 3000] [--dagger 0] [--tokenizer push=CHECKPOINT_FOLDER] [--layers latent,hidden]
 """
 
 from __future__ import annotations
@@ -35,6 +40,7 @@ from tasks.panels.grid import default_grid, expand, primary_camera  # noqa: E402
 from tasks.policy import bc, vision, vision_train  # noqa: E402
 from tasks.policy.evaluate import agreement, run_episode  # noqa: E402
 from tasks.policy.vision_obs import ObservationSpec  # noqa: E402
+from tasks.tokenize.tokens import load_checkpoint as load_tokenizer  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 FAMILIES = {"push": ("manifests/push_closeup.yaml", ("side",)),
@@ -63,7 +69,10 @@ def panel(parent, per_cell: int):
     return expand(parent, bench_grid(parent, per_cell))
 
 
-def train_both(parent, cameras, episodes: int, steps: int, rounds: int) -> tuple[dict, dict]:
+def train_all(parent, cameras, episodes: int, steps: int, rounds: int, tokenizer: Path | None = None,
+              layers: tuple[str, ...] = ()) -> tuple[dict, dict]:
+    """The state policy, the CNN vision policy and, with ``tokenizer``, one vision policy per
+    tokenizer layer, all from the same demonstrations (and the same DAgger seeds)."""
     seeds = list(range(parent.seed + TRAIN, parent.seed + TRAIN + episodes))
     timing = {}
     t = time.perf_counter()
@@ -75,19 +84,28 @@ def train_both(parent, cameras, episodes: int, steps: int, rounds: int) -> tuple
     demos = vision.collect(parent, seeds, spec)
     timing["vision: collect s"] = time.perf_counter() - t
     config = bc.TrainConfig(steps=steps, batch_size=64)
-    t = time.perf_counter()
-    model, history = vision_train.train_vision(demos, spec, config)
-    timing["vision: train steps/s (1 thread)"] = steps / (time.perf_counter() - t)
     per_round = max(4, episodes // 2)
     dagger_seeds = [list(range(parent.seed + DAGGER + k * per_round, parent.seed + DAGGER + (k + 1) * per_round))
                     for k in range(rounds)]
-    t = time.perf_counter()
-    model, demos, more = vision_train.dagger(parent, spec, demos, model, dagger_seeds,
-                                             config, offset=steps)
-    timing["vision: DAgger s"] = time.perf_counter() - t
-    learner = sorted({(row["round"], row["learner_success"]) for row in more})
-    timing["vision: learner success per DAgger round"] = [round(r, 2) for _, r in learner]
-    return {"state": bc.BCPolicy(state), "vision": vision.VisionPolicy(model, spec)}, timing
+    policies = {"state": bc.BCPolicy(state)}
+    arms = [("vision", None, "latent")]
+    if tokenizer is not None:
+        tok = load_tokenizer(tokenizer)
+        arms += [(f"vision-tok-{layer}", tok, layer) for layer in layers]
+    for key, tok, layer in arms:
+        t = time.perf_counter()
+        model, history = vision_train.train_vision(demos, spec, config, tokenizer=tok, layer=layer)
+        timing[f"{key}: train steps/s (1 thread, encoder cached)" if tok else f"{key}: train steps/s (1 thread)"] = \
+            steps / (time.perf_counter() - t)
+        timing[f"{key}: final smoothed loss"] = history[-1]["smoothed_loss"]
+        t = time.perf_counter()
+        model, _, more = vision_train.dagger(parent, spec, demos, model, dagger_seeds, config, offset=steps)
+        if rounds:
+            timing[f"{key}: DAgger s"] = time.perf_counter() - t
+            timing[f"{key}: learner success per DAgger round"] = [
+                round(r, 2) for _, r in sorted({(row["round"], row["learner_success"]) for row in more})]
+        policies[key] = vision.VisionPolicy(model, spec)
+    return policies, timing
 
 
 def inference_fps(policy: vision.VisionPolicy, frames: int = 200) -> float:
@@ -111,7 +129,9 @@ def family(name: str, args) -> None:
     path, cameras = FAMILIES[name]
     parent = manifests.load(REPO / path)
     started = time.perf_counter()
-    policies, timing = train_both(parent, cameras, args.episodes, args.steps, args.dagger)
+    tokenizer = dict(item.split("=", 1) for item in args.tokenizer).get(name)
+    policies, timing = train_all(parent, cameras, args.episodes, args.steps, args.dagger,
+                                 Path(tokenizer) if tokenizer else None, tuple(args.layers.split(",")))
     spec, variants = panel(parent, args.per_cell)
     camera = primary_camera(parent, None)
     outcomes = {k: [] for k in policies}
@@ -122,7 +142,7 @@ def family(name: str, args) -> None:
     print(f"\n## {name}: {parent.name}, vision policy on {', '.join(cameras)} at 64 px; "
           f"{args.episodes} demonstrations, {args.steps} steps, {args.dagger} DAgger rounds; "
           f"{args.per_cell} seeds per cell from {parent.seed + PANEL}")
-    print("| cell | state policy | vision policy |\n|---|---|---|")
+    print("| cell | " + " | ".join(f"{key} policy" for key in policies) + " |\n|" + "---|" * (len(policies) + 1))
     rates = {k: [] for k in policies}
     for cell in ORDER:
         row = [cell]
@@ -147,8 +167,10 @@ def family(name: str, args) -> None:
                       f"({o.reason}); detector {o.detector_reason}")
     for key, value in timing.items():
         print(f"{key}: {value if isinstance(value, list) else round(value, 1)}")
-    print(f"vision: inference {inference_fps(policies['vision']):.0f} frames/s (1 thread); "
-          f"family wall time {time.perf_counter() - started:.0f} s")
+    for key, policy in policies.items():
+        if key != "state":
+            print(f"{key}: inference {inference_fps(policy):.0f} frames/s (1 thread)")
+    print(f"family wall time {time.perf_counter() - started:.0f} s")
 
 
 def main() -> None:
@@ -158,6 +180,9 @@ def main() -> None:
     parser.add_argument("--per-cell", type=int, default=10, help="panel seeds per cell")
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--dagger", type=int, default=0, help="DAgger rounds after behaviour cloning")
+    parser.add_argument("--tokenizer", action="append", default=[], metavar="FAMILY=FOLDER",
+                        help="also vision policies seeing through this tokenizer checkpoint's encoder")
+    parser.add_argument("--layers", default="latent,hidden", help="the tokenizer's layers to try: latent, hidden")
     args = parser.parse_args()
     started = time.perf_counter()
     print(f"# vision_panels ({time.strftime('%Y-%m-%d')})")

@@ -38,6 +38,10 @@ def panels(params: PanelsParams) -> None:
 def train_policy_cmd(params: TrainPolicyParams) -> None:
     """Behaviour-clone the scripted controller into a small MLP policy (Prefect flow `train-policy`)."""
     params.check_scenario(need.simulable(params.manifest))
+    if params.tokenizer():
+        folder = need.tokenizer(params.tokenizer(), variant=None)
+        params.check_tokenizer(folder)
+        params = params.model_copy(update={"encoder": "tokenizer:" + folder})
     from flows.policy import train_policy as train_flow
 
     writing()

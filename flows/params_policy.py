@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Annotated
+from pathlib import Path
+from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
@@ -106,6 +107,11 @@ class TrainPolicyParams(DeviceParams):
     dagger: Annotated[int, Field(ge=0, le=20)] = Field(0, description="DAgger rounds of a vision policy: the "
                                                                      "learner drives, the scripted expert labels "
                                                                      "(measured to hurt so far: docs/evaluation.md)")
+    encoder: str = Field("cnn", description="a vision policy's image encoder: cnn (its own convolutions), or "
+                                            "tokenizer:CHECKPOINT (a tokenizer's encoder, folder or id, frozen)")
+    encoder_layer: Literal["latent", "hidden"] = Field(
+        "latent", description="with a tokenizer encoder: its latents (what the world model reads) or its last hidden "
+                              "features")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest",)
     cli_names = {"preset_name": "--preset"}
@@ -127,7 +133,30 @@ class TrainPolicyParams(DeviceParams):
                 parse_cameras(self.observe)
             except ValueError as exc:
                 raise Refused(f"{{observe}} {self.observe!r}: {str(exc).split(': ', 1)[1]}") from None
+        if self.encoder != "cnn":
+            if not self.encoder.startswith("tokenizer:") or not self.encoder[len("tokenizer:"):]:
+                raise Refused(f"{{encoder}} {self.encoder!r}: cnn, or tokenizer: and a tokenizer checkpoint folder or "
+                              "id")
+            if self.observe is None:
+                raise Refused("{encoder}: a state policy reads the simulator, it has no image encoder; add {observe}")
+        elif self.encoder_layer != "latent":
+            raise Refused("{encoder_layer}: only a tokenizer encoder has layers to choose; add {encoder} tokenizer:...")
         return self
+
+    def check_tokenizer(self, folder: str) -> None:
+        """The tokenizer checkpoint at ``folder`` against the frames it would encode."""
+        from models.tokenizer import TokenizerConfig
+        from tasks.checkpoint_files import model_config, read_config
+
+        config = model_config(TokenizerConfig, read_config(Path(folder), "tokenizer", "tokenizer checkpoint"),
+                              "tokenizer", Path(folder))
+        if self.image_size % config.spatial_compression:
+            raise Refused(f"{{encoder}} {self.tokenizer()}: its tokenizer compresses {config.spatial_compression}x "
+                          f"spatially; {{image_size}} {self.image_size} is not a multiple of it")
+
+    def tokenizer(self) -> str | None:
+        """The tokenizer checkpoint (folder or id) a vision policy sees through; None for its own CNN."""
+        return self.encoder.removeprefix("tokenizer:") if self.encoder != "cnn" else None
 
     def spec(self):
         """The vision policy's observation spec; None for a state policy."""

@@ -4,7 +4,9 @@ land in lineage; a finished training is skipped on a re-run.
 
 A state policy reads the simulator (tasks/policy/features.py); with ``observe`` a vision policy
 sees the named cameras and the robot's proprioception only, and DAgger rounds follow its
-behaviour cloning (tasks/policy/vision.py).
+behaviour cloning (tasks/policy/vision.py); with ``encoder`` ``tokenizer:CHECKPOINT`` it sees
+through that tokenizer's encoder, frozen, instead of its own convolutions (lineage edge
+``encoder_from``).
 
 Seeds: demonstrations use seed+1000 .. seed+1000+episodes-1, DAgger rounds seed+1500 onwards
 and the held-out check seed+2000 onwards, so none overlaps the seeds panels use by default
@@ -31,6 +33,8 @@ from tasks.policy import bc, vision, vision_train
 from tasks.policy.features import FEATURES_VERSION
 from tasks.policy.lineage import checkpoint_lineage
 from tasks.policy.vision import VisionPolicy
+from tasks.tokenize import tokens
+from tasks.world import inputs
 
 STAGE = "train_policy"
 TRAIN_OFFSET, DAGGER_OFFSET, HOLDOUT_OFFSET = 1000, 1500, 2000
@@ -49,10 +53,10 @@ def train(demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path, scenar
 
 @task(name="train-vision-dagger", cache_policy=NO_CACHE)
 def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], config: bc.TrainConfig, folder: Path,
-                 extra: dict, device="cpu"):
+                 extra: dict, device="cpu", tokenizer=None, layer: str = "latent"):
     """Behaviour cloning on the expert's camera demonstrations, then DAgger rounds."""
     demos = vision.collect(scenario, seeds, spec)
-    model, history = vision_train.train_vision(demos, spec, config, device=device)
+    model, history = vision_train.train_vision(demos, spec, config, device=device, tokenizer=tokenizer, layer=layer)
     model, demos, more = vision_train.dagger(scenario, spec, demos, model, rounds,
                                              config, offset=config.steps, device=device)
     learner = sorted({(row["round"], row["learner_success"]) for row in more})
@@ -65,7 +69,7 @@ def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], conf
 @flow(name="train-policy", log_prints=True)
 def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, preset_name: str = "tiny", seed: Seed = 0,
                  holdout: Holdout = 10, observe: str | None = None, image_size: Side = 64, dagger: int = 0,
-                 device: str | None = None) -> dict:
+                 encoder: str = "cnn", encoder_layer: str = "latent", device: str | None = None) -> dict:
     """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations;
     with ``observe``, a vision policy on those cameras, then ``dagger`` DAgger rounds.
     ``device``: where the network trains (``tasks.device``; not part of the checkpoint's id)."""
@@ -84,8 +88,13 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
     with recorded_run("train-policy", settings, scenario, source_uri=manifest,
                       params={"manifest": manifest, "episodes": episodes, "steps": steps, "preset": preset_name,
                               "seed": seed, "holdout": holdout, "observe": observe, "image_size": image_size,
-                              "dagger": dagger}) as run:
+                              "dagger": dagger, "encoder": encoder, "encoder_layer": encoder_layer}) as run:
+        tok_id, tokenizer = None, None
+        if checks.tokenizer():
+            tok_folder, tok_id = inputs.tokenizer_folder(run.warehouse, root, checks.tokenizer(), None)
+            tokenizer = tokens.load_checkpoint(tok_folder)
         seen = [content_hash(spec.model_dump(mode="json")), *map(str, sum(rounds, []))] if spec else []
+        seen += ["tokenizer", tok_id, encoder_layer] if tok_id else []
         key = stable_id(STAGE, run.manifest_hash, content_hash(config), str(FEATURES_VERSION), *map(str, train_seeds), *seen)
         checkpoint_id = stable_id("checkpoint", key)
         model_name = "vision-policy" if spec else "bc-policy"
@@ -95,7 +104,8 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
         if not stage.done:
             extra = {"checkpoint_id": checkpoint_id, "train_seeds": train_seeds}
             if spec:
-                history, learner = train_seeing(scenario, spec, train_seeds, rounds, config, folder, extra, on)
+                history, learner = train_seeing(scenario, spec, train_seeds, rounds, config, folder, extra, on,
+                                                tokenizer, encoder_layer)
                 policy = VisionPolicy.from_checkpoint(folder)
             else:
                 demos = collect(scenario, train_seeds)
@@ -108,9 +118,11 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
                      "held_out_success_rate": rate, "config": (folder / CONFIG_FILE).relative_to(root).as_posix()}
             if spec:
                 attrs |= {"observe": list(spec.cameras), "image_size": spec.image_size, "dagger_seeds": rounds,
-                          "dagger_learner_success": [r for _, r in learner]}
+                          "dagger_learner_success": [r for _, r in learner], "encoder": "tokenizer" if tok_id else "cnn"}
+                attrs |= {"tokenizer_id": tok_id, "encoder_layer": encoder_layer} if tok_id else {}
             batch = checkpoint_lineage(checkpoint_id, folder / bc.WEIGHTS_FILE, root, stage.id, run.manifest_hash,
-                                       {"model": model_name, **attrs}, [(run.manifest_hash, "trained_on")],
+                                       {"model": model_name, **attrs},
+                                       [(run.manifest_hash, "trained_on")] + ([(tok_id, "encoder_from")] if tok_id else []),
                                        "train_loss", history)
             if rate is not None:
                 batch.metrics.append(MetricRecord(subject_id=checkpoint_id, name="held_out_success_rate", value=rate,

@@ -12,13 +12,27 @@ expected image position of its activation, so the head sees *where* things are (
 the goal marker, the gripper) as coordinates, which is what a push or a grasp needs. Frames
 are standardised per channel by statistics of the training set; proprioception and actions
 are standardised as in the state policy, all kept as buffers so a checkpoint carries them.
+
+``encoder="tokenizer"`` puts the project's video tokenizer's encoder (models/tokenizer.py),
+frozen, in place of the first convolutions: a frame alone is a clip of one frame, whose
+first latent frame depends on it only (the tokenizer is causal), so each frame gives its
+``H/s x W/s`` grid of latents (``tokenizer_layer="latent"``: the bounded code values the
+world model reads) or of the encoder's last hidden features (``"hidden"``, before the
+projection to codes); two trainable convolutions and the spatial softmax follow. The
+encoder's weights are copied in from a tokenizer checkpoint (``load_tokenizer``) and saved
+with the policy's, so the checkpoint stands alone.
 """
 
 from __future__ import annotations
 
+from typing import Literal
+
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 from torch import nn
+
+from models.tokenizer import Encoder, TokenizerConfig, VideoTokenizer
+from models.tokenizer_layers import FSQ, haar_patch
 
 VISION_SCHEMA_VERSION = 1
 ACTION_SIZE = 5
@@ -38,14 +52,30 @@ class VisionConfig(BaseModel):
     channels: int = Field(32, ge=4, le=256)
     keypoints: int = Field(16, ge=2, le=128)
     hidden: int = Field(256, ge=8, le=4096)
+    encoder: Literal["cnn", "tokenizer"] = "cnn"
+    tokenizer: TokenizerConfig | None = Field(None, description="the tokenizer whose encoder it is (encoder tokenizer)")
+    tokenizer_layer: Literal["latent", "hidden"] = "latent"
+
+    @model_validator(mode="after")
+    def _encoder(self) -> "VisionConfig":
+        if (self.encoder == "tokenizer") != (self.tokenizer is not None):
+            raise ValueError("a tokenizer config goes with encoder 'tokenizer', and only with it")
+        if self.tokenizer is not None and self.image_size % self.tokenizer.spatial_compression:
+            raise ValueError(f"image size {self.image_size} is not a multiple of the tokenizer's spatial compression "
+                             f"{self.tokenizer.spatial_compression}")
+        return self
 
 
 PRESETS = {"tiny": dict(channels=16, keypoints=16, hidden=128), "small": dict(channels=32, keypoints=32, hidden=256)}
 
 
-def preset(name: str, cameras: int, image_size: int, proprio_size: int) -> VisionConfig:
-    """A named size; ``tiny`` trains at tens of steps per second on one CPU core at 64 px."""
-    return VisionConfig(name=name, cameras=cameras, image_size=image_size, proprio_size=proprio_size, **PRESETS[name])
+def preset(name: str, cameras: int, image_size: int, proprio_size: int, tokenizer: TokenizerConfig | None = None,
+           layer: str = "latent") -> VisionConfig:
+    """A named size; ``tiny`` trains at tens of steps per second on one CPU core at 64 px. With
+    ``tokenizer``, the encoder is that tokenizer's (``layer``: latent or hidden)."""
+    encoder = dict(encoder="tokenizer", tokenizer=tokenizer, tokenizer_layer=layer) if tokenizer else {}
+    return VisionConfig(name=name, cameras=cameras, image_size=image_size, proprio_size=proprio_size,
+                        **PRESETS[name], **encoder)
 
 
 class SpatialSoftmax(nn.Module):
@@ -80,11 +110,48 @@ class CameraEncoder(nn.Module):
         return self.softmax(self.conv(x))
 
 
+class TokenizerCameraEncoder(nn.Module):
+    """3 x S x S in [-1, 1] -> 2 x keypoints coordinates: the tokenizer's encoder, frozen (no
+    gradient, always in eval mode), on the frame as a one-frame clip, then two trainable
+    convolutions and a spatial softmax over the S/s x S/s grid."""
+
+    def __init__(self, config: VisionConfig):
+        super().__init__()
+        tok = config.tokenizer
+        self.layer = config.tokenizer_layer
+        self.encoder = Encoder(tok).requires_grad_(False)
+        self.fsq = FSQ(tok.fsq_levels) if tok.variant == "discrete" else None
+        width = tok.code_channels if self.layer == "latent" else tok.channels[-1]
+        c = config.channels
+        self.conv = nn.Sequential(nn.Conv2d(width, c, 3, padding=1), nn.GELU(), nn.Conv2d(c, config.keypoints, 1))
+        side = config.image_size // tok.spatial_compression
+        self.softmax = SpatialSoftmax(side, side)
+
+    def train(self, mode: bool = True) -> "TokenizerCameraEncoder":
+        super().train(mode)
+        self.encoder.eval()
+        return self
+
+    def latents(self, x: torch.Tensor) -> torch.Tensor:
+        """B x 3 x S x S in [-1, 1] -> B x width x S/s x S/s, without gradient."""
+        with torch.no_grad():
+            enc = self.encoder
+            if self.layer == "hidden":  # Encoder.forward up to its projection to codes
+                h = haar_patch(x[:, :, None], enc.c.haar_temporal_levels, enc.c.haar_spatial_levels)
+                return nn.functional.silu(enc.norm_out(enc.mid(enc.down(enc.conv_in(h)))))[:, :, 0]
+            h = enc(x[:, :, None])
+            return (self.fsq(h)[0] if self.fsq is not None else torch.tanh(h))[:, :, 0]
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.softmax(self.conv(self.latents(x)))
+
+
 class VisionPolicyNet(nn.Module):
     def __init__(self, config: VisionConfig):
         super().__init__()
         self.config = config
-        self.encoders = nn.ModuleList(CameraEncoder(config) for _ in range(config.cameras))
+        camera = TokenizerCameraEncoder if config.encoder == "tokenizer" else CameraEncoder
+        self.encoders = nn.ModuleList(camera(config) for _ in range(config.cameras))
         size = config.cameras * 2 * config.keypoints + config.proprio_size
         self.head = nn.Sequential(nn.Linear(size, config.hidden), nn.GELU(),
                                   nn.Linear(config.hidden, config.hidden), nn.GELU(),
@@ -107,15 +174,35 @@ class VisionPolicyNet(nn.Module):
             spread = tensor.std(0)
             std.copy_(torch.where(spread > 1e-8, spread, torch.ones_like(spread)))
 
-    def features(self, frames: torch.Tensor) -> torch.Tensor:
-        """B x C x 3 x H x W uint8 -> B x (C x 2 x keypoints) image coordinates."""
-        x = (frames.float() - self.pixel_mean) / self.pixel_std
-        return torch.cat([enc(x[:, i]) for i, enc in enumerate(self.encoders)], dim=1)
+    def load_tokenizer(self, tokenizer: VideoTokenizer) -> "VisionPolicyNet":
+        """Copy a trained tokenizer's encoder weights into every camera's encoder."""
+        if self.config.tokenizer != tokenizer.config:
+            raise ValueError(f"tokenizer {tokenizer.config.name} is not the one this policy was built for "
+                             f"({self.config.tokenizer.name if self.config.tokenizer else 'a CNN encoder'})")
+        for enc in self.encoders:
+            enc.encoder.load_state_dict(tokenizer.encoder.state_dict())
+        return self
 
-    def forward_normalised(self, frames: torch.Tensor, proprio: torch.Tensor) -> torch.Tensor:
-        """Standardised action units (what the loss sees)."""
+    def frozen(self, frames: torch.Tensor) -> torch.Tensor:
+        """B x C x 3 x H x W uint8 -> what no gradient changes, per camera: the tokenizer
+        encoder's ``B x C x width x H/s x W/s`` (training caches it once per frame), or for the
+        CNN the frames standardised by the training set's statistics."""
+        if self.config.encoder == "tokenizer":
+            x = frames.float() / 127.5 - 1.0  # the tokenizer's own input range
+            return torch.stack([enc.latents(x[:, i]) for i, enc in enumerate(self.encoders)], dim=1)
+        return (frames.float() - self.pixel_mean) / self.pixel_std
+
+    def features(self, frozen: torch.Tensor) -> torch.Tensor:
+        """``frozen(frames)`` -> B x (C x 2 x keypoints) image coordinates."""
+        if self.config.encoder == "tokenizer":
+            return torch.cat([enc.softmax(enc.conv(frozen[:, i].float())) for i, enc in enumerate(self.encoders)], 1)
+        return torch.cat([enc(frozen[:, i]) for i, enc in enumerate(self.encoders)], dim=1)
+
+    def forward_normalised(self, frames: torch.Tensor, proprio: torch.Tensor, frozen: torch.Tensor | None = None
+                           ) -> torch.Tensor:
+        """Standardised action units (what the loss sees); ``frozen`` given, ``frames`` is not read."""
         p = (proprio - self.proprio_mean) / self.proprio_std
-        return self.head(torch.cat([self.features(frames), p], dim=1))
+        return self.head(torch.cat([self.features(self.frozen(frames) if frozen is None else frozen), p], dim=1))
 
-    def forward(self, frames: torch.Tensor, proprio: torch.Tensor) -> torch.Tensor:
-        return self.forward_normalised(frames, proprio) * self.act_std + self.act_mean
+    def forward(self, frames: torch.Tensor, proprio: torch.Tensor, frozen: torch.Tensor | None = None) -> torch.Tensor:
+        return self.forward_normalised(frames, proprio, frozen) * self.act_std + self.act_mean

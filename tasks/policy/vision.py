@@ -67,6 +67,8 @@ class _Learner:
             raise ValueError(f"policy expects {model.config.proprio_size} proprioceptive values; this robot gives "
                              f"{proprio_size(self.arm)}")
         self.model, self.observer = model, Observer(scene, spec)
+        self.seen: np.ndarray | None = None  # the frames last encoded, and what the frozen encoder made of them
+        self.frozen: torch.Tensor | None = None
 
     def reset(self, data: mujoco.MjData) -> None:
         self.arm.reset(data)
@@ -85,8 +87,12 @@ class _Learner:
         try:
             with torch.inference_mode():
                 device = model_device(self.model)  # the CPU, or where it was just trained (DAgger)
-                return self.model(torch.from_numpy(frames)[None].to(device),
-                                  torch.from_numpy(state)[None].to(device))[0].cpu().numpy()
+                x = torch.from_numpy(frames)[None].to(device)
+                if self.seen is None or not np.array_equal(frames, self.seen):
+                    # A camera frame is held between its frame times (5 control steps at 10 fps):
+                    # its encoding is too (a tokenizer encoder costs 10x the CNN).
+                    self.seen, self.frozen = frames.copy(), self.model.frozen(x)
+                return self.model(x, torch.from_numpy(state)[None].to(device), self.frozen)[0].cpu().numpy()
         finally:
             torch.set_num_threads(threads)
 

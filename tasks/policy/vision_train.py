@@ -16,6 +16,7 @@ from typing import Any
 
 import torch
 
+from models.tokenizer import VideoTokenizer
 from models.vision_policy import VisionConfig, VisionPolicyNet, preset
 from schemas.manifest import ScenarioManifest
 from schemas.panel import contract_hash, panel_contract
@@ -29,13 +30,25 @@ from tasks.policy.vision_obs import PROPRIO_VERSION, ObservationSpec
 KEY = "vision"
 
 
+def frozen_features(model: VisionPolicyNet, frames: torch.Tensor, chunk: int = 256) -> torch.Tensor:
+    """``model.frozen`` of every frame, in chunks, without gradient; a tokenizer encoder's as
+    float16 (its latents are exact there, its hidden features within 1e-3), so the encoder runs
+    once per frame, not once per step that samples it."""
+    with torch.no_grad():
+        out = [model.frozen(frames[i:i + chunk]) for i in range(0, len(frames), chunk)]
+    return torch.cat(out).half()
+
+
 def train_vision(demos: VisionDemonstrations, spec: ObservationSpec, config: TrainConfig = TrainConfig(),
                  start: VisionPolicyNet | None = None, log: Callable[[dict], None] | None = None,
-                 device: str | torch.device = "cpu") -> tuple[VisionPolicyNet, list[dict]]:
+                 device: str | torch.device = "cpu", tokenizer: VideoTokenizer | None = None,
+                 layer: str = "latent") -> tuple[VisionPolicyNet, list[dict]]:
     """Seeded: the same demonstrations and config give the same weights. History rows every
     1/20 of the run: step, loss, smoothed loss, seconds. ``device``: where it trains (the
     demonstrations move there whole; minibatch indices are drawn on the CPU, so the same
-    samples on any device); the model is returned there (``tasks.device``)."""
+    samples on any device); the model is returned there (``tasks.device``). ``tokenizer``: a
+    fresh policy sees through that tokenizer's encoder (frozen; ``layer`` latent or hidden)
+    instead of its own convolutions."""
     torch.manual_seed(config.seed)
     threads = torch.get_num_threads()
     torch.set_num_threads(config.threads)
@@ -45,16 +58,21 @@ def train_vision(demos: VisionDemonstrations, spec: ObservationSpec, config: Tra
         if start is not None:
             model = copy.deepcopy(start)
         else:
-            model = VisionPolicyNet(preset(config.preset, len(spec.cameras), spec.image_size, state.shape[1]))
+            model = VisionPolicyNet(preset(config.preset, len(spec.cameras), spec.image_size, state.shape[1],
+                                           tokenizer.config if tokenizer else None, layer))
+            if tokenizer is not None:
+                model.load_tokenizer(tokenizer)
             sample = torch.randperm(len(frames), generator=torch.Generator().manual_seed(config.seed))[:2000]
             model.set_statistics(frames[sample], state, act)
         model.to(device)
         frames, state = frames.to(device), state.to(device)
         target = ((act.to(device) - model.act_mean) / model.act_std)
+        cached = frozen_features(model, frames) if model.config.encoder == "tokenizer" else None
 
         def loss(b: torch.Tensor) -> torch.Tensor:
             b = b.to(device)
-            return torch.nn.functional.mse_loss(model.forward_normalised(frames[b], state[b]), target[b])
+            frozen = None if cached is None else cached[b]
+            return torch.nn.functional.mse_loss(model.forward_normalised(frames[b], state[b], frozen), target[b])
 
         history = fit(model, loss, len(frames), config, log)
         return model.eval(), history
@@ -78,12 +96,24 @@ def dagger(manifest: ScenarioManifest, spec: ObservationSpec, demos: VisionDemon
         visited = collect(manifest, seeds, spec, learner=VisionPolicy(model, spec), round_=k)
         demos = demos + visited
         rate = sum(visited.successes) / max(1, len(visited.successes))
-        model, rows = train_vision(demos, spec, config.model_copy(update={"seed": config.seed + k}), device=device)
+        model, rows = train_vision(demos, spec, config.model_copy(update={"seed": config.seed + k}), device=device,
+                                   tokenizer=tokenizer_of(model), layer=model.config.tokenizer_layer)
         history += [{**row, "step": offset + (k - 1) * config.steps + row["step"], "round": k, "learner_success": rate}
                     for row in rows]
         if log:
             log({"round": k, "learner_success": rate, "samples": len(demos.act), "loss": rows[-1]["loss"]})
     return model, demos, history
+
+
+def tokenizer_of(model: VisionPolicyNet) -> VideoTokenizer | None:
+    """The tokenizer whose encoder ``model`` sees through (its encoder's weights; the decoder,
+    which a policy never runs, left as built), or None for a CNN policy: what a policy trained
+    afresh on the same footing needs (DAgger)."""
+    if model.config.tokenizer is None:
+        return None
+    tokenizer = VideoTokenizer(model.config.tokenizer)
+    tokenizer.encoder.load_state_dict(model.encoders[0].encoder.state_dict())
+    return tokenizer.to(next(model.parameters()).device)
 
 
 def save_checkpoint(model: VisionPolicyNet, spec: ObservationSpec, folder: Path, manifest: ScenarioManifest,

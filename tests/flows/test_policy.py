@@ -4,6 +4,7 @@ all in lineage; a finished training is found done on a re-run."""
 from pathlib import Path
 
 import pytest
+import torch
 
 from flows.policy import train_policy
 from schemas.settings import Settings
@@ -81,3 +82,45 @@ def test_train_policy_with_cameras_records_a_vision_checkpoint_that_evaluate_ref
     assert edges == [("episode", "vision")]
     with pytest.raises(ParamsError, match="observes camera\\(s\\) side, which"):
         simulate(str(other), 1, policy=f"vision:{result['folder']}")
+
+
+def test_train_policy_sees_through_a_tokenizer_the_tokenize_flow_trained(prefect_harness, data_root, tmp_path):
+    """`--encoder tokenizer:ID`: the vision policy's encoder is that tokenizer's (frozen), the
+    checkpoint names it in lineage (``encoder_from``), and frames it cannot tile are refused."""
+    from typer.testing import CliRunner
+
+    from flows.cli import app
+    from flows.curate import curate
+    from flows.simulate import simulate
+    from flows.tokenize import tokenize
+    from tasks.policy.vision import VisionPolicy
+    from tasks.tokenize.tokens import load_checkpoint
+
+    manifest = _manifest(tmp_path)
+    mh = simulate(str(manifest), 2)["manifest_hash"]
+    config = tmp_path / "curate.yaml"
+    config.write_text("overlay_text: {action: tag}\n")
+    curate([str(data_root / "episodes")], str(manifest), str(config))
+    tok = tokenize(mh, "tiny-dv4x8x8", steps=2, size=32, batch_size=2)
+    short = tok["checkpoint_id"][:12]
+    result = train_policy(str(manifest), episodes=2, steps=4, holdout=0, observe="overhead", image_size=32,
+                          encoder=f"tokenizer:{short}", encoder_layer="hidden")
+    policy = VisionPolicy.from_checkpoint(result["folder"])
+    tokenizer = load_checkpoint(Path(tok["checkpoint"]))
+    assert policy.model.config.tokenizer == tokenizer.config and policy.model.config.tokenizer_layer == "hidden"
+    assert all(torch.equal(a, b) for a, b in zip(policy.model.encoders[0].encoder.state_dict().values(),
+                                                 tokenizer.encoder.state_dict().values()))
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        _, edges = wh.query("SELECT parent_id, relation FROM edges WHERE child_id = $c ORDER BY relation",
+                            {"c": result["checkpoint_id"]})
+        _, (attrs,) = wh.query("SELECT attrs->>'encoder', attrs->>'tokenizer_id' FROM artifacts WHERE artifact_id = $c",
+                               {"c": result["checkpoint_id"]})
+    assert edges == [(tok["checkpoint_id"], "encoder_from"), (mh, "trained_on")]
+    assert attrs == ("tokenizer", tok["checkpoint_id"])
+    cnn = train_policy(str(manifest), episodes=2, steps=4, holdout=0, observe="overhead", image_size=32)
+    assert cnn["checkpoint_id"] != result["checkpoint_id"]
+
+    refused = CliRunner().invoke(app, ["train-policy", str(manifest), "--observe", "overhead", "--image-size", "36",
+                                       "--encoder", f"tokenizer:{short}"], terminal_width=400)
+    assert refused.exit_code == 2, refused.output
+    assert "compresses 8x spatially; --image-size 36 is not a multiple of it" in " ".join(refused.output.split())

@@ -148,3 +148,58 @@ def test_a_vision_policy_trained_on_the_gpu_acts_the_same_on_the_cpu(demos, tmp_
     # The learner drives the simulator from the GPU too (a DAgger round).
     _, aggregate, _ = dagger(PUSH, SPEC, demos, model, [[7]], TrainConfig(steps=2, batch_size=16), device="cuda")
     assert (aggregate.round == 1).sum() == round(PUSH.horizon_s * 50)
+
+
+def _tokenizer(seed: int = 0):
+    from models.tokenizer import VideoTokenizer, preset
+
+    torch.manual_seed(seed)
+    return VideoTokenizer(preset("tiny-dv4x8x8")).eval()
+
+
+@pytest.mark.parametrize("layer", ["latent", "hidden"])
+def test_a_policy_sees_through_a_frozen_tokenizer_encoder(demos, tmp_path, layer):
+    """Issue 28's second encoder: the tokenizer's, frozen. Training moves only the head; the
+    checkpoint carries the encoder's weights, so it acts the same loaded; DAgger keeps it."""
+    tokenizer = _tokenizer()
+    config = TrainConfig(steps=40, batch_size=32, lr=3e-3)
+    model, history = train_vision(demos, SPEC, config, tokenizer=tokenizer, layer=layer)
+    assert model.config.encoder == "tokenizer" and model.config.tokenizer_layer == layer
+    assert history[-1]["smoothed_loss"] < history[0]["loss"]
+    for enc in model.encoders:
+        assert all(torch.equal(a, b) for a, b in zip(enc.encoder.state_dict().values(),
+                                                     tokenizer.encoder.state_dict().values()))
+    # The cached encoder output (float16) gives what the frames give, within its rounding.
+    x, p = torch.from_numpy(demos.frames[:8]), torch.from_numpy(demos.proprio[:8])
+    with torch.inference_mode():
+        direct = model.forward_normalised(x, p)
+        cached = model.forward_normalised(x, p, model.frozen(x).half())
+    assert torch.allclose(direct, cached, atol=2e-2)
+    save_checkpoint(model, SPEC, tmp_path / "ck", PUSH, config, {"checkpoint_id": "e" * 64})
+    loaded, _, _ = load_checkpoint(tmp_path / "ck")
+    assert loaded.config.tokenizer == tokenizer.config
+    with torch.inference_mode():
+        assert torch.allclose(model(x, p), loaded(x, p))
+    # Acting, a frame held between camera frames is encoded once; the moves are the network's.
+    assert not np.array_equal(demos.frames[0], demos.frames[7])
+    learner = VisionPolicy(model, SPEC).controller(build_scene(PUSH, 3), 3)
+    try:
+        for i in (0, 0, 7, 7, 0):
+            with torch.inference_mode():
+                want = model(x[i:i + 1], p[i:i + 1])[0].numpy()
+            assert np.allclose(learner.act(demos.frames[i], demos.proprio[i]), want, atol=1e-5)
+    finally:
+        learner.close()
+    grown, _, _ = dagger(PUSH, SPEC, demos, model, [[7]], TrainConfig(steps=3, batch_size=16))
+    assert grown.config == model.config
+    assert torch.equal(grown.encoders[0].encoder.conv_in.conv.weight, tokenizer.encoder.conv_in.conv.weight)
+
+
+def test_a_tokenizer_encoder_must_fit_the_frames():
+    from models.vision_policy import VisionPolicyNet, preset
+
+    with pytest.raises(ValueError, match="not a multiple of the tokenizer's spatial compression 8"):
+        preset("tiny", 1, 36, 20, _tokenizer().config)
+    net = VisionPolicyNet(preset("tiny", 1, 32, 20, _tokenizer().config))
+    with pytest.raises(ValueError, match="not the one this policy was built for"):
+        net.load_tokenizer(type(_tokenizer())(_tokenizer().config.model_copy(update={"name": "other"})))
