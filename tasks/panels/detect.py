@@ -11,6 +11,13 @@ phase correlation, dim light by one gain for the clip. ``lift_clear`` (the bin p
 the package left its place and is seen lifted by the lift height (`detect_lift`). Other targets
 (``reach_goal``) return an undecided verdict (success None) rather than a guess.
 
+Version 8 (a disc mostly covered while the package is tracked too far off to cover it is
+undecided) on the 84 push_closeup calibration episodes (scripted at noise 0.3, 0.8 and 1.0,
+every cell of bench/vision_panels.py's grid, seeds 30000-30003, 2026-11-27): 80 decided, 80
+agreeing; the 4 it leaves undecided are successes whose track an occluder or distractors threw
+0.16 to 0.26 m off (version 7 called them successes). It keeps a policy that parks the arm over
+the goal, the package far away, from being called a success.
+
 Versions 5 and 6 (undecided within the tracker's precision of the tolerance; a covered disc
 pixel is one that changed colour), on bench/vision_panels.py's push panel (7 cells x 8 seeds,
 a state and a vision policy, 112 episodes): version 6 agrees on 91 of 95 decided (balanced
@@ -52,7 +59,11 @@ from schemas.manifest import Camera, Evaluation
 # 6: on rendered frames a disc pixel is visible only if it also keeps its first-frame colour
 # (a package the appearance stressor made green covered the disc unseen).
 # 7: lift_clear is judged too (`detect_lift.judge_lift`); push verdicts are unchanged.
-DETECTOR_VERSION = 7
+# 8: on rendered frames a disc mostly covered (under half of it visible) whose package is tracked
+# too far away to be what covers it (beyond the tolerance plus the package's half length plus the
+# tracker's precision) is undecided: something else hides the disc (an arm parked over it: a
+# poor policy fooled version 7).
+DETECTOR_VERSION = 8
 COVERED = 0.85  # below this share of the goal disc still visible at the end, it is covered
 TABLE_TOP = 0.10  # tasks/sim/scene.py: the push table's top (m)
 PACKAGE_HALF = (0.04, 0.03, 0.03)  # tasks/sim/scene.py: the package's half sizes (m)
@@ -327,6 +338,13 @@ def judge_push(frames: np.ndarray, camera: Camera, evaluation: Evaluation, packa
     near_miss = partly and gap > tol + TRACK_PRECISION_M
     if uncovered >= COVERED:
         return Verdict(False, f"goal marker uncovered at the end ({uncovered:.0%} of it visible); {tracked}", gap)
+    # The disc's radius is the tolerance: a package whose centre ends farther than that plus its
+    # own half length cannot overlap it at all, so the track and a disc mostly covered contradict
+    # each other (a disc only partly covered with such a track is a near miss, below).
+    if (reference is None and gap is not None and uncovered < 0.5
+            and gap > tol + max(PACKAGE_HALF[:2]) + TRACK_PRECISION_M):
+        return Verdict(None, f"undecided: goal marker covered at the end ({uncovered:.0%} of it visible), but "
+                             f"{tracked}, too far to be what covers it", gap)
     if partly and abs(gap - tol) <= TRACK_PRECISION_M:
         return Verdict(None, f"undecided: goal marker partly covered at the end ({uncovered:.0%} of it visible) and "
                              f"{tracked}, within the tracker's precision ({TRACK_PRECISION_M} m) of the tolerance "

@@ -143,3 +143,28 @@ def test_a_package_recoloured_green_still_covers_the_disc():
     assert ep.success
     verdict = judge_frames(ep.frames["side"], variant.cameras[0], variant.evaluation, ep.object_pose[0, 0, :3])
     assert verdict.success, verdict.reason
+
+
+def test_a_disc_covered_by_something_other_than_the_package_is_undecided():
+    """A poor policy can park the arm over the goal while the package lies far off (a state
+    policy trained 20 steps did, on push_closeup seed 10321: 47% of the disc visible, the
+    package tracked 0.244 m away); version 7 called that a success. Here seed 24's miss (the
+    package 0.252 m from the goal) gets the disc hidden in its last frames: the cover and the
+    track contradict each other, so the verdict is undecided, not a success."""
+    from scipy import ndimage
+
+    from tasks.panels.detect import _goal_mask
+
+    closeup = load(MANIFESTS / "push_closeup.yaml")
+    noisy = closeup.model_copy(update={"task": closeup.task.model_copy(update={"controller_noise": 0.8})})
+    ep = rollout(noisy, 24)
+    assert not ep.success
+    frames = ep.frames["side"].copy()
+    disc = ndimage.binary_dilation(_goal_mask(frames[0], noisy.cameras[0], noisy.evaluation.goal_tolerance_m),
+                                   iterations=2)
+    plain = judge_frames(frames, noisy.cameras[0], noisy.evaluation, ep.object_pose[0, 0, :3])
+    assert plain.success is False and "uncovered" in plain.reason
+    frames[-10:, disc] = (38, 38, 40)  # the gripper fingers' dark grey
+    verdict = judge_frames(frames, noisy.cameras[0], noisy.evaluation, ep.object_pose[0, 0, :3])
+    assert verdict.success is None and "too far to be what covers it" in verdict.reason, verdict.reason
+    assert verdict.distance_m > 0.2
