@@ -57,16 +57,16 @@ def wilson(k: int, n: int) -> tuple[float, float]:
     return max(0.0, centre - half), min(1.0, centre + half)
 
 
-def bench_grid(parent, per_cell: int) -> StressorGrid:
+def bench_grid(parent, per_cell: int, offset: int = PANEL) -> StressorGrid:
     """The default grid's cells in ORDER, plus a strong appearance change, on panel seeds."""
     cells = {c.name: c for c in default_grid(parent).cells}
     cells["appearance"] = StressorCell(name="appearance", stressors=(Appearance(colour_jitter=0.9, texture=True),))
     return StressorGrid(name="vision-bench", description="nominal, then one stressor at a time",
-                        cells=tuple(cells[name] for name in ORDER), episodes=per_cell, seed=parent.seed + PANEL)
+                        cells=tuple(cells[name] for name in ORDER), episodes=per_cell, seed=parent.seed + offset)
 
 
-def panel(parent, per_cell: int):
-    return expand(parent, bench_grid(parent, per_cell))
+def panel(parent, per_cell: int, offset: int = PANEL):
+    return expand(parent, bench_grid(parent, per_cell, offset))
 
 
 def train_all(parent, cameras, episodes: int, steps: int, rounds: int, tokenizer: Path | None = None,
@@ -132,7 +132,7 @@ def family(name: str, args) -> None:
     tokenizer = dict(item.split("=", 1) for item in args.tokenizer).get(name)
     policies, timing = train_all(parent, cameras, args.episodes, args.steps, args.dagger,
                                  Path(tokenizer) if tokenizer else None, tuple(args.layers.split(",")))
-    spec, variants = panel(parent, args.per_cell)
+    spec, variants = panel(parent, args.per_cell, args.panel_offset)
     camera = primary_camera(parent, None)
     outcomes = {k: [] for k in policies}
     for pv, variant in zip(spec.variants, variants):
@@ -141,7 +141,7 @@ def family(name: str, args) -> None:
                 outcomes[key].append(run_episode(variant, pv.cell, seed, policy, camera).outcome)
     print(f"\n## {name}: {parent.name}, vision policy on {', '.join(cameras)} at 64 px; "
           f"{args.episodes} demonstrations, {args.steps} steps, {args.dagger} DAgger rounds; "
-          f"{args.per_cell} seeds per cell from {parent.seed + PANEL}")
+          f"{args.per_cell} seeds per cell from {parent.seed + args.panel_offset}")
     print("| cell | " + " | ".join(f"{key} policy" for key in policies) + " |\n|" + "---|" * (len(policies) + 1))
     rates = {k: [] for k in policies}
     for cell in ORDER:
@@ -182,6 +182,8 @@ def main() -> None:
     parser.add_argument("--dagger", type=int, default=0, help="DAgger rounds after behaviour cloning")
     parser.add_argument("--tokenizer", action="append", default=[], metavar="FAMILY=FOLDER",
                         help="also vision policies seeing through this tokenizer checkpoint's encoder")
+    parser.add_argument("--panel-offset", type=int, default=PANEL,
+                        help="the panel's first seed past the manifest's (other seeds, the same cells)")
     parser.add_argument("--layers", default="latent,hidden", help="the tokenizer's layers to try: latent, hidden")
     args = parser.parse_args()
     started = time.perf_counter()
