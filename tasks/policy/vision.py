@@ -61,14 +61,17 @@ class _Learner:
     """Actuation half of the scripted controller with a network choosing the move; sees only
     the observer's frames and proprioception."""
 
+    # The frames last encoded and what the frozen encoder made of them (class defaults, so a
+    # subclass that builds itself, tasks/policy/world_env.py's twin, has them too).
+    seen: np.ndarray | None = None
+    frozen: torch.Tensor | None = None
+
     def __init__(self, model: VisionPolicyNet, spec: ObservationSpec, scene: Scene, seed: int):
         self.arm = ArmController(scene, seed, noise=0.0)
         if proprio_size(self.arm) != model.config.proprio_size:
             raise ValueError(f"policy expects {model.config.proprio_size} proprioceptive values; this robot gives "
                              f"{proprio_size(self.arm)}")
         self.model, self.observer = model, Observer(scene, spec)
-        self.seen: np.ndarray | None = None  # the frames last encoded, and what the frozen encoder made of them
-        self.frozen: torch.Tensor | None = None
 
     def reset(self, data: mujoco.MjData) -> None:
         self.arm.reset(data)
