@@ -92,6 +92,7 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
         tok_id, tokenizer = None, None
         if checks.tokenizer():
             tok_folder, tok_id = inputs.tokenizer_folder(run.warehouse, root, checks.tokenizer(), None)
+            checks.check_tokenizer(str(tok_folder))  # a deployment's run, as the CLI before it starts
             tokenizer = tokens.load_checkpoint(tok_folder)
         seen = [content_hash(spec.model_dump(mode="json")), *map(str, sum(rounds, []))] if spec else []
         seen += ["tokenizer", tok_id, encoder_layer] if tok_id else []

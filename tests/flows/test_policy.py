@@ -120,6 +120,9 @@ def test_train_policy_sees_through_a_tokenizer_the_tokenize_flow_trained(prefect
     cnn = train_policy(str(manifest), episodes=2, steps=4, holdout=0, observe="overhead", image_size=32)
     assert cnn["checkpoint_id"] != result["checkpoint_id"]
 
+    with pytest.raises(ValueError, match="compresses 8x spatially; image_size 36 is not a multiple of it"):
+        train_policy(str(manifest), episodes=2, steps=4, holdout=0, observe="overhead", image_size=36,
+                     encoder=f"tokenizer:{short}")  # as a deployment runs it
     refused = CliRunner().invoke(app, ["train-policy", str(manifest), "--observe", "overhead", "--image-size", "36",
                                        "--encoder", f"tokenizer:{short}"], terminal_width=400)
     assert refused.exit_code == 2, refused.output
