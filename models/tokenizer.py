@@ -113,10 +113,14 @@ class Encoder(nn.Module):
         self.norm_out = FrameNorm(top)
         self.conv_out = nn.Sequential(SpatialConv(top, c.code_channels), CausalTemporalConv(c.code_channels, c.code_channels))
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def hidden(self, x: torch.Tensor) -> torch.Tensor:
+        """The last features before the projection to codes, ``B x channels[-1] x T' x H' x W'``
+        (what a vision policy may read instead of the codes: models/vision_policy.py)."""
         h = haar_patch(x, self.c.haar_temporal_levels, self.c.haar_spatial_levels)
-        h = self.mid(self.down(self.conv_in(h)))
-        return self.conv_out(nn.functional.silu(self.norm_out(h)))
+        return nn.functional.silu(self.norm_out(self.mid(self.down(self.conv_in(h)))))
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.conv_out(self.hidden(x))
 
 
 class Decoder(nn.Module):

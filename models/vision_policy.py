@@ -32,7 +32,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 from torch import nn
 
 from models.tokenizer import Encoder, TokenizerConfig, VideoTokenizer
-from models.tokenizer_layers import FSQ, haar_patch
+from models.tokenizer_layers import FSQ
 
 VISION_SCHEMA_VERSION = 1
 ACTION_SIZE = 5
@@ -135,11 +135,9 @@ class TokenizerCameraEncoder(nn.Module):
     def latents(self, x: torch.Tensor) -> torch.Tensor:
         """B x 3 x S x S in [-1, 1] -> B x width x S/s x S/s, without gradient."""
         with torch.no_grad():
-            enc = self.encoder
-            if self.layer == "hidden":  # Encoder.forward up to its projection to codes
-                h = haar_patch(x[:, :, None], enc.c.haar_temporal_levels, enc.c.haar_spatial_levels)
-                return nn.functional.silu(enc.norm_out(enc.mid(enc.down(enc.conv_in(h)))))[:, :, 0]
-            h = enc(x[:, :, None])
+            if self.layer == "hidden":
+                return self.encoder.hidden(x[:, :, None])[:, :, 0]
+            h = self.encoder(x[:, :, None])
             return (self.fsq(h)[0] if self.fsq is not None else torch.tanh(h))[:, :, 0]
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
