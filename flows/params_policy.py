@@ -106,7 +106,11 @@ class TrainPolicyParams(DeviceParams):
     image_size: Side = Field(64, description="a vision policy's frames, downscaled to this square size")
     dagger: Annotated[int, Field(ge=0, le=20)] = Field(0, description="DAgger rounds of a vision policy: the "
                                                                      "learner drives, the scripted expert labels "
-                                                                     "(measured to hurt so far: docs/evaluation.md)")
+                                                                     "and takes over where it strays")
+    dagger_gate: Annotated[float, Field(ge=0, le=100)] = Field(
+        1.0, description="the expert takes over and labels a DAgger step only where the learner's move is off its "
+                         "own by more than this many spreads of the demonstrations' moves (HG-DAgger); 0 labels "
+                         "every step and leaves the learner in charge (plain DAgger, which hurt: docs/evaluation.md)")
     encoder: str = Field("cnn", description="a vision policy's image encoder: cnn (its own convolutions), or "
                                             "tokenizer:CHECKPOINT (a tokenizer's encoder, folder or id, frozen)")
     encoder_layer: Literal["latent", "hidden"] = Field(
@@ -141,6 +145,8 @@ class TrainPolicyParams(DeviceParams):
                 raise Refused("{encoder}: a state policy reads the simulator, it has no image encoder; add {observe}")
         elif self.encoder_layer != "latent":
             raise Refused("{encoder_layer}: only a tokenizer encoder has layers to choose; add {encoder} tokenizer:...")
+        if self.dagger_gate != 1.0 and not (self.dagger and self.observe):
+            raise Refused("{dagger_gate} gates the DAgger rounds of a vision policy; add {observe} and {dagger}")
         return self
 
     def check_tokenizer(self, folder: str) -> None:

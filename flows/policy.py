@@ -53,25 +53,30 @@ def train(demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path, scenar
 
 @task(name="train-vision-dagger", cache_policy=NO_CACHE)
 def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], config: bc.TrainConfig, folder: Path,
-                 extra: dict, device="cpu", tokenizer=None, layer: str = "latent"):
-    """Behaviour cloning on the expert's camera demonstrations, then DAgger rounds."""
+                 extra: dict, device="cpu", tokenizer=None, layer: str = "latent", gate: float | None = 1.0):
+    """Behaviour cloning on the expert's camera demonstrations, then DAgger rounds (``gate``
+    None: plain DAgger)."""
     demos = vision.collect(scenario, seeds, spec)
     model, history = vision_train.train_vision(demos, spec, config, device=device, tokenizer=tokenizer, layer=layer)
-    model, demos, more = vision_train.dagger(scenario, spec, demos, model, rounds,
-                                             config, offset=config.steps, device=device)
+    model, demos, more = vision_train.dagger(scenario, spec, demos, model, rounds, config, offset=config.steps,
+                                             device=device, gate=gate, loss=history[-1]["loss"])
     learner = sorted({(row["round"], row["learner_success"]) for row in more})
+    taken = {row["round"]: row["interventions"] for row in more}
     vision_train.save_checkpoint(model, spec, folder, scenario, config, {
         **extra, "demonstrations": int(len(demos.act)), "successes": sum(demos.successes[:len(seeds)]),
-        "dagger_rounds": [{"round": k, "seeds": rounds[k - 1], "learner_success": r} for k, r in learner]})
+        "dagger_gate": gate, "dagger_rounds": [{"round": k, "seeds": rounds[k - 1], "learner_success": r,
+                                                "interventions": taken[k]} for k, r in learner]})
     return history + more, learner
 
 
 @flow(name="train-policy", log_prints=True)
 def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, preset_name: str = "tiny", seed: Seed = 0,
                  holdout: Holdout = 10, observe: str | None = None, image_size: Side = 64, dagger: int = 0,
-                 encoder: str = "cnn", encoder_layer: str = "latent", device: str | None = None) -> dict:
+                 dagger_gate: float = 1.0, encoder: str = "cnn", encoder_layer: str = "latent",
+                 device: str | None = None) -> dict:
     """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations;
-    with ``observe``, a vision policy on those cameras, then ``dagger`` DAgger rounds.
+    with ``observe``, a vision policy on those cameras, then ``dagger`` DAgger rounds, gated at
+    ``dagger_gate`` (0: plain DAgger).
     ``device``: where the network trains (``tasks.device``; not part of the checkpoint's id)."""
     checks = TrainPolicyParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
@@ -88,7 +93,8 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
     with recorded_run("train-policy", settings, scenario, source_uri=manifest,
                       params={"manifest": manifest, "episodes": episodes, "steps": steps, "preset": preset_name,
                               "seed": seed, "holdout": holdout, "observe": observe, "image_size": image_size,
-                              "dagger": dagger, "encoder": encoder, "encoder_layer": encoder_layer}) as run:
+                              "dagger": dagger, "dagger_gate": dagger_gate, "encoder": encoder,
+                              "encoder_layer": encoder_layer}) as run:
         tok_id, tokenizer = None, None
         if checks.tokenizer():
             tok_folder, tok_id = inputs.tokenizer_folder(run.warehouse, root, checks.tokenizer(), None)
@@ -96,6 +102,8 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
             tokenizer = tokens.load_checkpoint(tok_folder)
         seen = [content_hash(spec.model_dump(mode="json")), *map(str, sum(rounds, []))] if spec else []
         seen += ["tokenizer", tok_id, encoder_layer] if tok_id else []
+        gate = dagger_gate or None  # 0: plain DAgger
+        seen += ["dagger_gate", str(gate)] if rounds else []
         key = stable_id(STAGE, run.manifest_hash, content_hash(config), str(FEATURES_VERSION), *map(str, train_seeds), *seen)
         checkpoint_id = stable_id("checkpoint", key)
         model_name = "vision-policy" if spec else "bc-policy"
@@ -106,7 +114,7 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
             extra = {"checkpoint_id": checkpoint_id, "train_seeds": train_seeds}
             if spec:
                 history, learner = train_seeing(scenario, spec, train_seeds, rounds, config, folder, extra, on,
-                                                tokenizer, encoder_layer)
+                                                tokenizer, encoder_layer, gate)
                 policy = VisionPolicy.from_checkpoint(folder)
             else:
                 demos = collect(scenario, train_seeds)
@@ -120,6 +128,7 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
             if spec:
                 attrs |= {"observe": list(spec.cameras), "image_size": spec.image_size, "dagger_seeds": rounds,
                           "dagger_learner_success": [r for _, r in learner], "encoder": "tokenizer" if tok_id else "cnn"}
+                attrs |= {"dagger_gate": gate} if rounds else {}
                 attrs |= {"tokenizer_id": tok_id, "encoder_layer": encoder_layer} if tok_id else {}
             batch = checkpoint_lineage(checkpoint_id, folder / bc.WEIGHTS_FILE, root, stage.id, run.manifest_hash,
                                        {"model": model_name, **attrs},

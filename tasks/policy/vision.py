@@ -7,6 +7,15 @@ every state the learner visits with the move it would make from there: a shadow 
 controller whose commanded pose is set to the learner's before it plans (``ArmController.plan``),
 so its label is the move from where the learner actually is. The learner acts through the same
 ``ArmController.apply`` as the expert and the state policy.
+
+By default a DAgger round is gated (HG-DAgger, Kelly et al., 2019): the expert takes over, and
+its label is kept, only on a step where the learner's move is off the expert's by more than
+``gate`` times the demonstrations' spread of that action value (or the grip differs); the
+learner's other steps are neither labelled nor changed. Labelling every step (``gate`` None,
+plain DAgger) taught the learner to undo moves that worked: the shadow controller keeps its own
+phase (approach, descend, push ...), which advances only when the arm reaches that phase's
+waypoint, so on a learner that pushes from a few millimetres off the expert's path it stays
+behind and labels the push with a move back (docs/evaluation.md).
 """
 
 from __future__ import annotations
@@ -116,13 +125,19 @@ class _Learner:
 class _Recorder:
     """Records (frames, proprio, label) each step. Without a learner the expert acts (a
     demonstration, with the manifest's noise); with one the learner acts and a noiseless
-    shadow expert, put at the learner's commanded pose, gives the label (DAgger)."""
+    shadow expert, put at the learner's commanded pose, gives the label (DAgger). With a
+    ``gate`` only the steps where the learner's move is off the label by more than ``gate``
+    times the demonstrations' spread (the model's action scale), or its grip differs, are
+    recorded, and there the expert's move is the one made (HG-DAgger); ``interventions``
+    counts them out of ``steps``."""
 
-    def __init__(self, scene: Scene, seed: int, spec: ObservationSpec, learner: _Learner | None = None):
+    def __init__(self, scene: Scene, seed: int, spec: ObservationSpec, learner: _Learner | None = None,
+                 gate: float | None = None):
         self.expert = make_controller(scene, seed) if learner is None else ArmController(scene, seed, noise=0.0)
-        self.learner = learner
+        self.learner, self.gate = learner, gate
         self.observer = learner.observer if learner else Observer(scene, spec)
         self.frames, self.proprio, self.act = [], [], []
+        self.steps = self.interventions = 0
 
     def reset(self, data: mujoco.MjData) -> None:
         self.expert.reset(data)
@@ -135,18 +150,35 @@ class _Recorder:
     def step(self, data: mujoco.MjData) -> np.ndarray:
         acting = self.learner.arm if self.learner else self.expert
         frames, state = self.observer.frames(data), proprio(data, acting)
-        self.frames.append(frames)
-        self.proprio.append(state)
         if self.learner is None:
             pos, yaw = self.expert.target_pos.copy(), self.expert.target_yaw
             action = self.expert.step(data)
-            self.act.append([*(self.expert.target_pos - pos), self.expert.target_yaw - yaw, self.expert.grip])
+            self._record(frames, state, [*(self.expert.target_pos - pos), self.expert.target_yaw - yaw, self.expert.grip])
             return action
         e, a = self.expert, self.learner.arm
         e.target_pos, e.target_yaw, e.grip = a.target_pos.copy(), a.target_yaw, a.grip
         delta, dyaw, grip = e.plan(data)
-        self.act.append([*delta, dyaw, grip])
-        return self.learner.apply(data, self.learner.act(frames, state))
+        label = np.array([*delta, dyaw, grip], np.float32)
+        move = self.learner.act(frames, state)
+        self.steps += 1
+        if self.gate is not None and not self._off(move, label):
+            return self.learner.apply(data, move)  # the learner's own move stands, unlabelled
+        self._record(frames, state, label.tolist())
+        if self.gate is None:
+            return self.learner.apply(data, move)
+        self.interventions += 1
+        return self.learner.apply(data, label)  # the expert takes over this step
+
+    def _off(self, move: np.ndarray, label: np.ndarray) -> bool:
+        """Whether the learner's move is off the expert's by more than ``gate`` times the
+        demonstrations' spread of a move value, or sets the grip otherwise."""
+        scale = self.learner.model.act_std.detach().cpu().numpy()[:4]
+        return bool(np.max(np.abs(move[:4] - label[:4]) / scale) > self.gate or (move[4] >= 0.5) != (label[4] >= 0.5))
+
+    def _record(self, frames: np.ndarray, state: np.ndarray, label: list) -> None:
+        self.frames.append(frames)
+        self.proprio.append(state)
+        self.act.append(label)
 
     def close(self) -> None:
         self.observer.close()
@@ -154,11 +186,14 @@ class _Recorder:
 
 def collect(manifest: ScenarioManifest, seeds: Sequence[int], spec: ObservationSpec,
             learner: "VisionPolicy | None" = None, round_: int = 0, config: SimConfig = SimConfig(),
-            successes_only: bool | None = None) -> VisionDemonstrations:
+            successes_only: bool | None = None, gate: float | None = None,
+            counts: dict[str, int] | None = None) -> VisionDemonstrations:
     """The expert's demonstrations on ``seeds`` (its failures left out), or with ``learner`` a
-    DAgger round: the learner's episodes, every step labelled by the expert (failures kept:
-    they are where the labels teach most). The episodes' videos are not recorded; the policy's
-    cameras are rendered at the manifest's fps, as in evaluation."""
+    DAgger round: the learner's episodes, every step labelled by the expert, or with ``gate``
+    the steps where the expert took over (failures kept: they are where the labels teach
+    most). ``counts`` (if given) gains the round's ``steps`` and ``interventions``. The
+    episodes' videos are not recorded; the policy's cameras are rendered at the manifest's
+    fps, as in evaluation."""
     require_arm(manifest)
     keep_failures = learner is not None if successes_only is None else not successes_only
     frames, state, act, index, outcomes = [], [], [], [], []
@@ -167,17 +202,26 @@ def collect(manifest: ScenarioManifest, seeds: Sequence[int], spec: ObservationS
 
         def factory(scene: Scene, s: int) -> _Recorder:
             inner = _Learner(learner.model, learner.spec, scene, s) if learner else None
-            made.append(_Recorder(scene, s, spec, inner))
+            made.append(_Recorder(scene, s, spec, inner, gate))
             return made[-1]
 
         ep = rollout(manifest, seed, config, controller=factory, record=())
         outcomes.append(bool(ep.success))
+        rec = made[0]
+        if counts is not None:
+            counts["steps"] = counts.get("steps", 0) + rec.steps
+            counts["interventions"] = counts.get("interventions", 0) + rec.interventions
         if ep.success or keep_failures:
-            rec = made[0]
             frames += rec.frames
             state += rec.proprio
             act += rec.act
             index += [k] * len(rec.frames)
+    if not frames and learner is not None and gate is not None:
+        size = (len(spec.cameras), 3, spec.image_size, spec.image_size)  # the expert never took over
+        return VisionDemonstrations(frames=np.zeros((0, *size), np.uint8),
+                                    proprio=np.zeros((0, learner.model.config.proprio_size), np.float32),
+                                    act=np.zeros((0, 5), np.float32), episode=np.zeros(0, np.int64),
+                                    round=np.zeros(0, np.int64), seeds=tuple(seeds), successes=tuple(outcomes))
     if not frames:
         raise ValueError(f"manifest {manifest.name}: no successful demonstrations on seeds {list(seeds)}")
     return VisionDemonstrations(frames=np.stack(frames), proprio=np.asarray(state, np.float32),

@@ -28,6 +28,11 @@ from tasks.policy.vision import VisionDemonstrations, VisionPolicy, collect
 from tasks.policy.vision_obs import PROPRIO_VERSION, ObservationSpec
 
 KEY = "vision"
+# DAgger's gate, in the demonstrations' spreads of a move value: the expert takes over (and
+# labels) a step only where the learner's move is further off its own (tasks/policy/vision.py).
+# One spread: on push_closeup plain DAgger took held-out success from 1.00 to 0.25 and 0.00 in
+# two rounds, gated at 1.0 it stayed at 1.00 (docs/evaluation.md).
+DAGGER_GATE = 1.0
 
 
 def frozen_features(model: VisionPolicyNet, frames: torch.Tensor, chunk: int = 256) -> torch.Tensor:
@@ -83,26 +88,40 @@ def train_vision(demos: VisionDemonstrations, spec: ObservationSpec, config: Tra
 
 def dagger(manifest: ScenarioManifest, spec: ObservationSpec, demos: VisionDemonstrations, model: VisionPolicyNet,
            rounds: Sequence[Sequence[int]], config: TrainConfig, offset: int = 0,
-           log: Callable[[dict], None] | None = None, device: str | torch.device = "cpu"
+           log: Callable[[dict], None] | None = None, device: str | torch.device = "cpu",
+           gate: float | None = DAGGER_GATE, loss: float | None = None
            ) -> tuple[VisionPolicyNet, VisionDemonstrations, list[dict]]:
     """One DAgger round per seed list in ``rounds``: the learner's episodes, expert-labelled,
     added to ``demos``; then, as in DAgger, a policy trained afresh on the aggregate, its
     normalisation statistics recomputed. (Continuing from the current weights kept the
     demonstrations' statistics: the expert's corrections, much larger than the noisy
     demonstrations' yaw moves, then dominated the loss, and on push_closeup held-out success
-    fell from 0.9 to 0.0 in two rounds.) History rows gain ``round`` and the learner's success
-    in it (``learner_success``); their steps count on from ``offset`` (the steps trained before)."""
+    fell from 0.9 to 0.0 in two rounds.) ``gate``: the expert labels, and takes over, only the
+    steps where the learner's move is off its own by more than ``gate`` times the
+    demonstrations' spread (HG-DAgger; ``tasks/policy/vision.py``); None labels every step
+    (plain DAgger). A round where the expert never took over adds nothing and trains nothing:
+    its history row carries the model's last training loss (``loss`` before the first round).
+    History rows gain ``round``, the learner's success in it (``learner_success``; with a gate,
+    helped where the expert took over) and the share of its steps the expert took
+    (``interventions``); their steps count on from ``offset`` (the steps trained before)."""
     history = []
     for k, seeds in enumerate(rounds, start=1):
-        visited = collect(manifest, seeds, spec, learner=VisionPolicy(model, spec), round_=k)
-        demos = demos + visited
+        counts: dict[str, int] = {}
+        visited = collect(manifest, seeds, spec, learner=VisionPolicy(model, spec), round_=k, gate=gate, counts=counts)
         rate = sum(visited.successes) / max(1, len(visited.successes))
-        model, rows = train_vision(demos, spec, config.model_copy(update={"seed": config.seed + k}), device=device,
-                                   tokenizer=tokenizer_of(model), layer=model.config.tokenizer_layer)
-        history += [{**row, "step": offset + (k - 1) * config.steps + row["step"], "round": k, "learner_success": rate}
-                    for row in rows]
+        share = counts.get("interventions", 0) / max(1, counts.get("steps", 0)) if gate is not None else 1.0
+        if len(visited.act):
+            demos = demos + visited
+            model, rows = train_vision(demos, spec, config.model_copy(update={"seed": config.seed + k}), device=device,
+                                       tokenizer=tokenizer_of(model), layer=model.config.tokenizer_layer)
+        else:
+            rows = [{"step": config.steps, "loss": history[-1]["loss"] if history else
+                     (float("nan") if loss is None else loss)}]
+        history += [{**row, "step": offset + (k - 1) * config.steps + row["step"], "round": k, "learner_success": rate,
+                     "interventions": share} for row in rows]
         if log:
-            log({"round": k, "learner_success": rate, "samples": len(demos.act), "loss": rows[-1]["loss"]})
+            log({"round": k, "learner_success": rate, "interventions": share, "samples": len(demos.act),
+                 "loss": rows[-1]["loss"]})
     return model, demos, history
 
 

@@ -54,12 +54,17 @@ def test_train_policy_with_cameras_records_a_vision_checkpoint_that_evaluate_ref
     result = train_policy(str(manifest), episodes=2, steps=6, holdout=1, observe="side", image_size=32, dagger=1)
     policy = VisionPolicy.from_checkpoint(result["folder"])
     assert policy.spec.cameras == ("side",) and policy.meta["dagger_rounds"][0]["seeds"] == [1521, 1522, 1523, 1524]
+    # The round is gated by default (HG-DAgger): the checkpoint says how, and how often the expert took over.
+    assert policy.meta["dagger_gate"] == 1.0 and 0 <= policy.meta["dagger_rounds"][0]["interventions"] <= 1
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         _, (row,) = wh.query("SELECT attrs->>'model', attrs->>'observe' FROM artifacts WHERE artifact_id = $c",
                              {"c": result["checkpoint_id"]})
+        _, gate = wh.query("SELECT attrs->>'dagger_gate' FROM artifacts WHERE artifact_id = $c",
+                           {"c": result["checkpoint_id"]})
         _, steps = wh.query("SELECT max(step) FROM metrics WHERE subject_id = $c AND name = 'train_loss'",
                             {"c": result["checkpoint_id"]})
     assert row == ("vision-policy", '["side"]') and steps == [(12,)]  # 6 steps, then one DAgger round of 6
+    assert gate == [("1.0",)]
 
     # The state policy of the same manifest is another checkpoint; a panel without its camera is refused.
     assert train_policy(str(manifest), episodes=2, steps=6, holdout=0)["checkpoint_id"] != result["checkpoint_id"]

@@ -118,7 +118,7 @@ def test_training_fits_and_a_checkpoint_acts_the_same_after_loading(demos, tmp_p
 def test_dagger_labels_the_learners_own_states_with_the_experts_moves(demos):
     model, _ = train_vision(demos, SPEC, TrainConfig(steps=5, batch_size=16))
     grown, aggregate, history = dagger(PUSH, SPEC, demos, model, [[7]], TrainConfig(steps=4, batch_size=16),
-                                       offset=5)
+                                       offset=5, gate=None)
     added = aggregate.round == 1
     assert added.sum() == round(PUSH.horizon_s * 50) and len(aggregate.act) == len(demos.act) + added.sum()
     assert aggregate.seeds == (1, 2, 7) and set(aggregate.episode[added]) == {2}
@@ -126,6 +126,28 @@ def test_dagger_labels_the_learners_own_states_with_the_experts_moves(demos):
     # A barely trained learner does not follow the expert: its states are its own, not a demonstration's.
     assert not np.allclose(aggregate.proprio[added][-1], demos.proprio[len(demos.act) // 2 - 1])
     assert np.all(np.isfinite(aggregate.act[added]))
+
+
+def test_gated_dagger_keeps_only_the_steps_where_the_expert_took_over(demos):
+    """HG-DAgger: the expert acts, and labels, only where the learner's move is off its own by
+    more than the gate (in the demonstrations' spreads) or sets the grip otherwise."""
+    model, _ = train_vision(demos, SPEC, TrainConfig(steps=5, batch_size=16))
+    learner, steps = VisionPolicy(model, SPEC), round(PUSH.horizon_s * 50)
+    counts = {}
+    every = collect(PUSH, [7], SPEC, learner=learner, round_=1, gate=0.0, counts=counts)
+    assert counts == {"steps": steps, "interventions": steps} and len(every.act) == steps
+    # With the expert's every move made, the episode is the noiseless expert's own from that seed.
+    noiseless = PUSH.model_copy(update={"task": PUSH.task.model_copy(update={"controller_noise": 0.0})})
+    expert = collect(noiseless, [7], SPEC, successes_only=False)
+    assert np.allclose(every.act, expert.act, atol=1e-6) and np.allclose(every.proprio, expert.proprio, atol=1e-5)
+    counts = {}
+    none = collect(PUSH, [7], SPEC, learner=learner, round_=1, gate=1e9, counts=counts)
+    # Only a grip set otherwise than the expert's could be taken over; a push holds it closed.
+    assert counts == {"steps": steps, "interventions": 0} and len(none.act) == 0
+    same, _, history = dagger(PUSH, SPEC, demos, model, [[7]], TrainConfig(steps=4, batch_size=16), gate=1e9,
+                              loss=0.25)  # a round the expert never took over trains nothing
+    assert same is model and history == [{"step": 4, "loss": 0.25, "round": 1, "learner_success": 0.0,
+                                          "interventions": 0.0}]
 
 
 def test_an_explicit_cpu_device_trains_the_very_same_weights(demos):
