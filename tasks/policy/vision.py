@@ -12,10 +12,12 @@ By default a DAgger round is gated (HG-DAgger, Kelly et al., 2019): the expert t
 its label is kept, only on a step where the learner's move is off the expert's by more than
 ``gate`` times the demonstrations' spread of that action value (or the grip differs); the
 learner's other steps are neither labelled nor changed. Labelling every step (``gate`` None,
-plain DAgger) taught the learner to undo moves that worked: the shadow controller keeps its own
-phase (approach, descend, push ...), which advances only when the arm reaches that phase's
-waypoint, so on a learner that pushes from a few millimetres off the expert's path it stays
-behind and labels the push with a move back (docs/evaluation.md).
+plain DAgger) taught the learner to undo moves that worked: the shadow controller kept its own
+phase (approach, descend, push ...), which advanced only when the arm reached that phase's
+waypoint, so on a learner that pushed from a few millimetres off the expert's path it stayed
+behind and labelled the push with a move back. The shadow now reads its phase from the state
+before it plans (``ArmController.resync``, ``RESYNC``); neither that nor the gate has yet made
+DAgger beat behaviour cloning (docs/evaluation.md).
 """
 
 from __future__ import annotations
@@ -122,6 +124,9 @@ class _Learner:
         self.observer.close()
 
 
+RESYNC = True  # the labelling expert takes its phase from the state (ArmController.resync); False: its own
+
+
 class _Recorder:
     """Records (frames, proprio, label) each step. Without a learner the expert acts (a
     demonstration, with the manifest's noise); with one the learner acts and a noiseless
@@ -135,6 +140,7 @@ class _Recorder:
                  gate: float | None = None):
         self.expert = make_controller(scene, seed) if learner is None else ArmController(scene, seed, noise=0.0)
         self.learner, self.gate = learner, gate
+        self.resync = RESYNC
         self.observer = learner.observer if learner else Observer(scene, spec)
         self.frames, self.proprio, self.act = [], [], []
         self.steps = self.interventions = 0
@@ -157,6 +163,8 @@ class _Recorder:
             return action
         e, a = self.expert, self.learner.arm
         e.target_pos, e.target_yaw, e.grip = a.target_pos.copy(), a.target_yaw, a.grip
+        if self.resync:
+            e.resync(data)
         delta, dyaw, grip = e.plan(data)
         label = np.array([*delta, dyaw, grip], np.float32)
         move = self.learner.act(frames, state)

@@ -25,6 +25,7 @@ MAX_STEP = 0.012  # m per control step (0.6 m/s at 50 Hz)
 PUSH_STEP = 0.005
 MAX_YAW_STEP = 0.08
 NOISE_STEP = 0.01  # m: per-step std of commanded-pose noise at controller_noise = 1
+PUSH_BAND = 0.02  # m above the push height within which an arm is taken to be pushing (ArmController.resync)
 NOISE_AIM = 0.1  # m: std of the per-attempt aim error at controller_noise = 1
 FINGER_REACH = 0.018  # closed fingers' half thickness along the push direction
 STOP_GAP = 0.45 + 0.35 + 0.25  # forklift half width + base half length + margin (m)
@@ -172,6 +173,42 @@ class ArmController:
                 self.bias = self._aim()
                 self._go("approach")
         return goal, yaw, grip, step
+
+    def resync(self, data: mujoco.MjData) -> None:
+        """Take the push's phase from the state alone: where the arm, the package and the goal
+        are, not which of this controller's waypoints the arm passed. An expert labelling
+        another's states (DAgger) needs it: a learner that pushes from a few millimetres off
+        the path never reaches the approach or descend waypoint, and a controller waiting
+        for them labels every step of a good push with a move back. Low (within PUSH_BAND of
+        the push height), across the package from the goal and in line with it (as the push
+        phase itself allows, 0.03 m): push; low otherwise, behind the package: realign; low
+        past it, or high: approach, or descend within 0.03 m of above the pre-push point. A pick keeps
+        its phase (its phases also follow the grip and the lift, not read here). A package
+        already at the goal: retreat, as the push itself decides."""
+        if self.task != "push" or self.phase == "retreat":
+            return
+        pkg, tcp = data.xpos[self.body][:2], data.site_xpos[self.site]
+        to_goal = self.goal_xy - pkg
+        dist = float(np.linalg.norm(to_goal))
+        if dist < 0.3 * self.scene.manifest.evaluation.goal_tolerance_m:
+            self._go("retreat")  # the package is there: lift clear
+            return
+        u = to_goal / max(dist, 1e-9)
+        box_yaw = body_yaw(data.xquat[self.body])
+        half = self.scene.target_half
+        angle = box_yaw - math.atan2(u[1], u[0])
+        reach = abs(half[0] * math.cos(angle)) + abs(half[1] * math.sin(angle))
+        contact = pkg - u * (reach + FINGER_REACH + 0.004) + self.bias * 0.3
+        offset = tcp[:2] - contact
+        lateral = abs(float(u[0] * offset[1] - u[1] * offset[0]))
+        along = float(u @ offset)  # < 0: on the far side of the contact point from the goal
+        if tcp[2] < self.scene.rim_z + 0.025 + PUSH_BAND:
+            phase = "push" if lateral <= 0.03 and along <= 0.03 else "realign" if along < 0 else "approach"
+        else:
+            above = float(np.linalg.norm(tcp[:2] - (contact - u * 0.05))) <= 0.03
+            phase = "descend" if above else "approach"
+        if phase != self.phase:
+            self._go(phase)
 
     def plan(self, data: mujoco.MjData) -> tuple[np.ndarray, float, float]:
         """The noiseless move from the commanded pose: (delta, dyaw, grip); advances the phase.

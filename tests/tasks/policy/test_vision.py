@@ -128,13 +128,17 @@ def test_dagger_labels_the_learners_own_states_with_the_experts_moves(demos):
     assert np.all(np.isfinite(aggregate.act[added]))
 
 
-def test_gated_dagger_keeps_only_the_steps_where_the_expert_took_over(demos):
+def test_gated_dagger_keeps_only_the_steps_where_the_expert_took_over(demos, monkeypatch):
     """HG-DAgger: the expert acts, and labels, only where the learner's move is off its own by
     more than the gate (in the demonstrations' spreads) or sets the grip otherwise."""
+    import tasks.policy.vision as vision
+
     model, _ = train_vision(demos, SPEC, TrainConfig(steps=5, batch_size=16))
     learner, steps = VisionPolicy(model, SPEC), round(PUSH.horizon_s * 50)
     counts = {}
+    monkeypatch.setattr(vision, "RESYNC", False)  # the expert keeps its own phases, as when it demonstrates
     every = collect(PUSH, [7], SPEC, learner=learner, round_=1, gate=0.0, counts=counts)
+    monkeypatch.undo()
     assert counts == {"steps": steps, "interventions": steps} and len(every.act) == steps
     # With the expert's every move made, the episode is the noiseless expert's own from that seed.
     noiseless = PUSH.model_copy(update={"task": PUSH.task.model_copy(update={"controller_noise": 0.0})})
