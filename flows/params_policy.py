@@ -11,6 +11,9 @@ from flows.params import (DeviceParams, Episodes, FlowParams, Holdout, PanelEpis
                           Steps, WorldSamples, Worst)
 
 GRID = "stressor grid YAML (schemas/panel.py StressorGrid); default: nominal, clean, then one stressor at a time"
+# tasks/policy/vision_train.DAGGER_GATE, repeated here so checking parameters imports no torch
+# (tests/flows/test_param_checks.py holds them equal).
+DAGGER_GATE = 1.0
 
 
 class PanelsParams(DeviceParams):
@@ -108,7 +111,7 @@ class TrainPolicyParams(DeviceParams):
                                                                      "learner drives, the scripted expert labels "
                                                                      "and takes over where it strays")
     dagger_gate: Annotated[float, Field(ge=0, le=100)] = Field(
-        1.0, description="the expert takes over and labels a DAgger step only where the learner's move is off its "
+        DAGGER_GATE, description="the expert takes over and labels a DAgger step only where the learner's move is off its "
                          "own by more than this many spreads of the demonstrations' moves (HG-DAgger); 0 labels "
                          "every step and leaves the learner in charge (plain DAgger, which hurt: docs/evaluation.md)")
     encoder: str = Field("cnn", description="a vision policy's image encoder: cnn (its own convolutions), or "
@@ -145,7 +148,7 @@ class TrainPolicyParams(DeviceParams):
                 raise Refused("{encoder}: a state policy reads the simulator, it has no image encoder; add {observe}")
         elif self.encoder_layer != "latent":
             raise Refused("{encoder_layer}: only a tokenizer encoder has layers to choose; add {encoder} tokenizer:...")
-        if self.dagger_gate != 1.0 and not (self.dagger and self.observe):
+        if self.dagger_gate != DAGGER_GATE and not (self.dagger and self.observe):
             raise Refused("{dagger_gate} gates the DAgger rounds of a vision policy; add {observe} and {dagger}")
         return self
 

@@ -53,7 +53,8 @@ def train(demos: bc.Demonstrations, config: bc.TrainConfig, folder: Path, scenar
 
 @task(name="train-vision-dagger", cache_policy=NO_CACHE)
 def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], config: bc.TrainConfig, folder: Path,
-                 extra: dict, device="cpu", tokenizer=None, layer: str = "latent", gate: float | None = 1.0):
+                 extra: dict, device="cpu", tokenizer=None, layer: str = "latent",
+                 gate: float | None = vision_train.DAGGER_GATE):
     """Behaviour cloning on the expert's camera demonstrations, then DAgger rounds (``gate``
     None: plain DAgger)."""
     demos = vision.collect(scenario, seeds, spec)
@@ -72,7 +73,7 @@ def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], conf
 @flow(name="train-policy", log_prints=True)
 def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, preset_name: str = "tiny", seed: Seed = 0,
                  holdout: Holdout = 10, observe: str | None = None, image_size: Side = 64, dagger: int = 0,
-                 dagger_gate: float = 1.0, encoder: str = "cnn", encoder_layer: str = "latent",
+                 dagger_gate: float = vision_train.DAGGER_GATE, encoder: str = "cnn", encoder_layer: str = "latent",
                  device: str | None = None) -> dict:
     """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations;
     with ``observe``, a vision policy on those cameras, then ``dagger`` DAgger rounds, gated at

@@ -268,3 +268,10 @@ def test_a_world_model_or_a_policy_that_does_not_fit_the_panel_is_refused_in_one
     with pytest.raises(ParamsError, match=re.escape(said)):
         panels.fn(manifest=PUSH, world_model=str(side))
     assert not (data_root / "lineage.duckdb").exists()
+
+
+def test_the_dagger_gate_default_is_the_libraries():
+    from flows.params_policy import DAGGER_GATE
+    from tasks.policy.vision_train import DAGGER_GATE as LIBRARY
+
+    assert DAGGER_GATE == LIBRARY
