@@ -130,7 +130,9 @@ class ArmController:
                 self._go("approach")
         return goal, yaw, grip, step
 
-    def _push(self, data) -> tuple[np.ndarray, float, float, float]:
+    def _push_geometry(self, data) -> tuple[float, np.ndarray, np.ndarray, np.ndarray, float]:
+        """(package's distance to the goal, unit direction u to it, the contact point behind the
+        package, the tcp, the tcp's distance sideways from the push line through the contact)."""
         pkg = data.xpos[self.body][:2]
         to_goal = self.goal_xy - pkg
         dist = float(np.linalg.norm(to_goal))
@@ -139,12 +141,16 @@ class ArmController:
         half = self.scene.target_half
         reach = abs(half[0] * math.cos(box_yaw - math.atan2(u[1], u[0]))) + abs(half[1] * math.sin(box_yaw - math.atan2(u[1], u[0])))
         contact = pkg - u * (reach + FINGER_REACH + 0.004) + self.bias * 0.3
-        # Closed fingers make a paddle wide across their closing axis: point that axis along u.
-        yaw = _nearest_equivalent(math.atan2(u[1], u[0]) - self.scene.grip_axis, self.target_yaw, math.pi)
-        low, high = self.scene.rim_z + 0.025, self.scene.rim_z + 0.14
         tcp = data.site_xpos[self.site]
         offset = tcp[:2] - contact
         lateral = abs(float(u[0] * offset[1] - u[1] * offset[0]))  # 2-D cross product
+        return dist, u, contact, tcp, lateral
+
+    def _push(self, data) -> tuple[np.ndarray, float, float, float]:
+        dist, u, contact, tcp, lateral = self._push_geometry(data)
+        # Closed fingers make a paddle wide across their closing axis: point that axis along u.
+        yaw = _nearest_equivalent(math.atan2(u[1], u[0]) - self.scene.grip_axis, self.target_yaw, math.pi)
+        low, high = self.scene.rim_z + 0.025, self.scene.rim_z + 0.14
         p, step, grip = self.phase, MAX_STEP, 1.0
         if p == "approach":
             goal = np.array([*(contact - u * 0.05), high])
@@ -187,21 +193,11 @@ class ArmController:
         already at the goal: retreat, as the push itself decides."""
         if self.task != "push" or self.phase == "retreat":
             return
-        pkg, tcp = data.xpos[self.body][:2], data.site_xpos[self.site]
-        to_goal = self.goal_xy - pkg
-        dist = float(np.linalg.norm(to_goal))
+        dist, u, contact, tcp, lateral = self._push_geometry(data)
         if dist < 0.3 * self.scene.manifest.evaluation.goal_tolerance_m:
             self._go("retreat")  # the package is there: lift clear
             return
-        u = to_goal / max(dist, 1e-9)
-        box_yaw = body_yaw(data.xquat[self.body])
-        half = self.scene.target_half
-        angle = box_yaw - math.atan2(u[1], u[0])
-        reach = abs(half[0] * math.cos(angle)) + abs(half[1] * math.sin(angle))
-        contact = pkg - u * (reach + FINGER_REACH + 0.004) + self.bias * 0.3
-        offset = tcp[:2] - contact
-        lateral = abs(float(u[0] * offset[1] - u[1] * offset[0]))
-        along = float(u @ offset)  # < 0: on the far side of the contact point from the goal
+        along = float(u @ (tcp[:2] - contact))  # < 0: on the far side of the contact point from the goal
         if tcp[2] < self.scene.rim_z + 0.025 + PUSH_BAND:
             phase = "push" if lateral <= 0.03 and along <= 0.03 else "realign" if along < 0 else "approach"
         else:
