@@ -2,7 +2,7 @@
 
 import numpy as np
 
-from bench.loop_targeting import failed_summary
+from bench.loop_targeting import failed_summary, repeat_summary
 
 
 def test_failed_summary_names_the_better_control_and_its_ceiling():
@@ -18,3 +18,11 @@ def test_failed_summary_names_the_better_control_and_its_ceiling():
     assert "targeted 1.00" in pooled and "uniform 0.75" in pooled
     # the uniform control is at 6/8 on the failed cells: no arm can lead it by more than 0.25
     assert ceiling.endswith("(1.00 on every failed cell): +0.25")
+
+
+def test_repeat_summary_gives_the_failed_cells_and_the_lowest_other_cell():
+    outcomes = {"nominal": [True] * 4, "dim": [True, False, False, False], "occluder": [True, True, False, False],
+                "appearance": [True, True, True, False]}
+    assert repeat_summary(outcomes, ["dim", "appearance"]) == \
+        "; after: dim 0.25, appearance 0.75, lowest elsewhere occluder 0.50"
+    assert repeat_summary(outcomes, []) == ""
