@@ -10,8 +10,8 @@ loop's own step):
 - **nominal**: the budget on the manifest as it is;
 - **uniform**: the budget spread evenly over every cell of the panel.
 Each arm runs ``--repeats`` times with independent demonstration and training seeds. Every
-policy is evaluated on the same held-out panel seeds (which no demonstration used). It prints,
-per cell, success before and after for each arm (pooled over repeats) with a bootstrap 95%
+policy is evaluated on the same held-out panel seeds (which no demonstration used). It prints
+each repeat's success on the cells that failed as it goes, then per cell success before and after for each arm (pooled over repeats) with a bootstrap 95%
 interval over episodes, the gain on the cells that failed against the better control, and
 the wall time. With several ``--budget`` values it runs every arm at each (an arm's
 demonstrations at a smaller budget are the first ones of its larger budget: derived manifests
