@@ -25,6 +25,9 @@ MAX_STEP = 0.012  # m per control step (0.6 m/s at 50 Hz)
 PUSH_STEP = 0.005
 MAX_YAW_STEP = 0.08
 NOISE_STEP = 0.01  # m: per-step std of commanded-pose noise at controller_noise = 1
+PUSH_HEIGHT = 0.025  # m above the rim at which closed fingers push the package
+PRE_PUSH = 0.05  # m behind the contact point where a push starts (the approach's and realign's waypoint)
+PUSH_LINE = 0.03  # m off the push line (and past the contact point) that a push still tolerates
 PUSH_BAND = 0.02  # m above the push height within which an arm is taken to be pushing (ArmController.resync)
 NOISE_AIM = 0.1  # m: std of the per-attempt aim error at controller_noise = 1
 FINGER_REACH = 0.018  # closed fingers' half thickness along the push direction
@@ -150,24 +153,24 @@ class ArmController:
         dist, u, contact, tcp, lateral = self._push_geometry(data)
         # Closed fingers make a paddle wide across their closing axis: point that axis along u.
         yaw = _nearest_equivalent(math.atan2(u[1], u[0]) - self.scene.grip_axis, self.target_yaw, math.pi)
-        low, high = self.scene.rim_z + 0.025, self.scene.rim_z + 0.14
+        low, high = self.scene.rim_z + PUSH_HEIGHT, self.scene.rim_z + 0.14
         p, step, grip = self.phase, MAX_STEP, 1.0
         if p == "approach":
-            goal = np.array([*(contact - u * 0.05), high])
+            goal = np.array([*(contact - u * PRE_PUSH), high])
             if self._near(data, goal, 0.015) and abs(yaw - self.target_yaw) < 0.08:
                 self._go("descend")
         elif p == "descend":
-            goal = np.array([*(contact - u * 0.05), low])
+            goal = np.array([*(contact - u * PRE_PUSH), low])
             if self._near(data, goal, 0.008):
                 self._go("push")
         elif p == "push":
             goal, step = np.array([*(contact + u * 0.03), low]), PUSH_STEP
             if dist < 0.3 * self.scene.manifest.evaluation.goal_tolerance_m:
                 self._go("retreat")
-            elif lateral > 0.03:
+            elif lateral > PUSH_LINE:
                 self._go("realign")
         elif p == "realign":
-            goal = np.array([*(contact - u * 0.05), low])
+            goal = np.array([*(contact - u * PRE_PUSH), low])
             if self._near(data, goal, 0.01):
                 self._go("push")
             elif self.phase_t > 1.0:
@@ -198,10 +201,10 @@ class ArmController:
             self._go("retreat")  # the package is there: lift clear
             return
         along = float(u @ (tcp[:2] - contact))  # < 0: on the far side of the contact point from the goal
-        if tcp[2] < self.scene.rim_z + 0.025 + PUSH_BAND:
-            phase = "push" if lateral <= 0.03 and along <= 0.03 else "realign" if along < 0 else "approach"
+        if tcp[2] < self.scene.rim_z + PUSH_HEIGHT + PUSH_BAND:
+            phase = "push" if lateral <= PUSH_LINE and along <= PUSH_LINE else "realign" if along < 0 else "approach"
         else:
-            above = float(np.linalg.norm(tcp[:2] - (contact - u * 0.05))) <= 0.03
+            above = float(np.linalg.norm(tcp[:2] - (contact - u * PRE_PUSH))) <= 0.03
             phase = "descend" if above else "approach"
         if phase != self.phase:
             self._go(phase)
