@@ -19,7 +19,7 @@ import re
 import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager, nullcontext
+from contextlib import contextmanager, nullcontext, suppress
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -255,13 +255,18 @@ class Warehouse:
         publish lock meanwhile, so no commit lands while a publish copies the file."""
         publisher = self._publisher
         with self._lock, publisher.lock if publisher else nullcontext(), self._damage_named():
-            self.con.execute("BEGIN TRANSACTION")
+            # BEGIN and COMMIT inside the try: a Ctrl-C or SIGTERM surfaces at the call it
+            # arrives during or just after, and one at the BEGIN left the transaction open, so
+            # the run row's close failed and the row stayed 'running'. A ROLLBACK with nothing
+            # to roll back (the BEGIN did not run, or the COMMIT did) is refused, and ignored.
             try:
+                self.con.execute("BEGIN TRANSACTION")
                 yield self.con
+                self.con.execute("COMMIT")
             except BaseException:
-                self.con.execute("ROLLBACK")
+                with suppress(duckdb.TransactionException):
+                    self.con.execute("ROLLBACK")
                 raise
-            self.con.execute("COMMIT")
             if publisher is not None:
                 publisher.dirty = True
                 if publisher.wait_s() == 0:

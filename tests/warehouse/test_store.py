@@ -57,6 +57,44 @@ def test_runs_start_and_finish(tmp_path):
     assert rows == [("partial", "2 inputs failed", True)]
 
 
+class _InterruptedAt:
+    """The warehouse's connection, but the call running ``statement`` raises KeyboardInterrupt
+    once that statement has run: a signal handled as DuckDB returns (its own signal check, or
+    Python's between two bytecodes) surfaces at that call."""
+
+    def __init__(self, con, statement: str):
+        self.con, self.statement = con, statement
+
+    def execute(self, sql, *args):
+        result = self.con.execute(sql, *args)
+        if sql == self.statement:
+            self.statement = None
+            raise KeyboardInterrupt
+        return result
+
+    def __getattr__(self, name):
+        return getattr(self.con, name)
+
+
+@pytest.mark.parametrize("statement", ["BEGIN TRANSACTION", "COMMIT"])
+def test_a_signal_at_begin_or_commit_leaves_no_transaction_open(tmp_path, statement):
+    """A Ctrl-C or SIGTERM that surfaced at the BEGIN of a batch left its transaction open: the
+    run row's close then failed ("cannot start a transaction within a transaction") and the row
+    stayed 'running' (an intermittent failure of tests/flows/test_interrupts.py)."""
+    with Warehouse(tmp_path / "w.duckdb") as wh:
+        wh.start_run(RunRecord(run_id="r1", flow="simulate"))
+        con, wh.con = wh.con, _InterruptedAt(wh.con, statement)
+        with pytest.raises(KeyboardInterrupt):
+            with wh.transaction() as batch:
+                batch.execute("INSERT INTO edges VALUES ('p', 'c', 'x')")
+        wh.con = con
+        wh.finish_run("r1", "failed", "interrupted by SIGINT")
+        _, rows = wh.query("SELECT status, message FROM runs")
+        edges = wh.counts()["edges"]
+    assert rows == [("failed", "interrupted by SIGINT")]
+    assert edges == (1 if statement == "COMMIT" else 0)  # a commit that ran stands
+
+
 FORCED_EXIT = """
 import os, sys, threading
 from schemas.records import RunRecord
