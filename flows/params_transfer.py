@@ -73,8 +73,9 @@ class TransferParams(DeviceParams):
     weights: str | None = Field(None, description="control weights, e.g. edges=1,blur=1,depth=0,segmentation=1 "
                                                   "(1 where not given; 0 removes a control)")
     reference: str | None = Field(None, description="a video (e.g. a curated clip) whose look, its colour statistics, "
-                                                    "the output takes beside the look's word (models trained "
-                                                    "with reference clips: preset small-ref)")
+                                                    "the output takes beside the look's word (models whose preset "
+                                                    "takes reference clips: small-ref, small-frame, small-affine, "
+                                                    "small-palette)")
     cli_arguments = ("source",)
     cli_paths = ("model", "reference")
 
