@@ -7,7 +7,7 @@ from typing import Optional
 
 import typer
 
-from flows.cli_shell import FORMAT, app, check_format, out, print_rows, refuse
+from flows.cli_shell import FORMAT, app, check_format, out, print_rows, refuse, say
 from schemas.errors import WorldlineError
 from schemas.settings import Settings
 
@@ -16,19 +16,23 @@ from schemas.settings import Settings
 def sql(
     statement: str = typer.Argument(..., help="one read-only SQL statement on the lineage tables (docs/lineage.md)"),
     fmt: str = FORMAT,
+    limit: int = typer.Option(10_000, "--limit", min=0, help="print at most this many rows (0: every row)"),
 ) -> None:
     """Run one read-only SQL statement on the lineage warehouse. While a flow writes, it reads
     the snapshot the writer publishes (<data_root>/lineage.snapshot.duckdb), so it never holds
-    the flow up (docs/lineage.md)."""
+    the flow up (docs/lineage.md). It neither writes nor reads files (no COPY ... TO, EXPORT,
+    read_csv)."""
     from warehouse.snapshot import query
     from warehouse.store import WarehouseError
 
     check_format(fmt)
     try:
-        cols, rows = query(statement)
+        cols, rows, more = query(statement, limit=limit or None)
     except WarehouseError as exc:
         refuse(exc)
-    print_rows(cols, rows, fmt, title=f"{len(rows)} rows")
+    print_rows(cols, rows, fmt, title=f"first {len(rows)} rows (more left: --limit)" if more else f"{len(rows)} rows")
+    if more and fmt != "table":
+        say(f"worldline sql: printed the first {len(rows)} rows; more are left (--limit N, 0 for every row)")
 
 
 @app.command()

@@ -198,13 +198,14 @@ def open_snapshot(warehouse_path: Path | str | None = None) -> Warehouse:
 
 
 def query(sql: str, params: dict[str, Any] | list[Any] | None = None,
-          warehouse_path: Path | str | None = None) -> tuple[list[str], list[tuple]]:
-    """Column names and rows of one read-only statement (``worldline sql``); the connection
-    refuses writes (`WarehouseError` names the statement's error in one line)."""
+          warehouse_path: Path | str | None = None, limit: int | None = None) -> tuple[list[str], list[tuple], bool]:
+    """Column names and rows of one read-only statement (``worldline sql``), at most ``limit``
+    rows, and whether more were left; the connection refuses writes, and file access
+    (`Warehouse.query_sandboxed`; `WarehouseError` names the statement's error in one line)."""
     from warehouse.store import WarehouseError
 
     with open_snapshot(warehouse_path) as wh:
         try:
-            return wh.query(sql, params)
+            return wh.query_sandboxed(sql, params, limit)
         except duckdb.Error as exc:
             raise WarehouseError(f"{wh.path}: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}") from None

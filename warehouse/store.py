@@ -371,6 +371,26 @@ class Warehouse:
             cols = [d[0] for d in cur.description] if cur.description else []
             return cols, cur.fetchall()
 
+    def query_sandboxed(self, sql: str, params: dict[str, Any] | list[Any] | None = None,
+                        limit: int | None = None) -> tuple[list[str], list[tuple], bool]:
+        """``query`` for a statement from outside (``worldline sql``), on a reader only: DuckDB's
+        file access is off for the rest of this connection first (a read-only connection still
+        ran COPY ... TO, EXPORT DATABASE, read_text and glob: `COPY ... TO` the warehouse's own
+        path replaced it), and at most ``limit`` rows are fetched (the result streams, so a huge
+        one is not held); the third value says whether rows were left unfetched."""
+        if not self.read_only:
+            raise WarehouseError(f"{self.path}: statements from outside run on a reader only")
+        if not sql.strip().strip(";").strip():
+            raise WarehouseError("no SQL statement given")
+        with self._lock, self._damage_named():
+            self.con.execute("SET enable_external_access = false")
+            cur = self.con.execute(sql, params or [])
+            if cur is None or not cur.description:
+                return [], [], False
+            rows = cur.fetchall() if limit is None else cur.fetchmany(limit + 1)
+            more = limit is not None and len(rows) > limit
+            return [d[0] for d in cur.description], rows[:limit] if more else rows, more
+
     def counts(self) -> dict[str, int]:
         tables = ("runs", *COLUMNS)
         with self._lock, self._damage_named():

@@ -21,6 +21,15 @@ def test_sql_reads_lineage_and_refuses_writes(tmp_path, monkeypatch):
     refused = runner.invoke(app, ["sql", "DELETE FROM runs"])
     assert refused.exit_code == 2 and "read-only" in refused.output.lower(), refused.output
     assert json.loads(runner.invoke(app, ["sql", "SELECT count(*) AS n FROM runs", "--format", "json"]).output) == [{"n": 2}]
+    warehouse = lineage.root / "lineage.duckdb"
+    copied = runner.invoke(app, ["sql", f"COPY (SELECT 1 AS x) TO '{warehouse}' (FORMAT csv)"])
+    assert copied.exit_code == 2 and "disabled" in copied.output and len(copied.output.strip().splitlines()) == 1
+    assert runner.invoke(app, ["summary"]).exit_code == 0  # the warehouse is still one
+    empty = runner.invoke(app, ["sql", " "])
+    assert empty.exit_code == 2 and "no SQL statement given" in empty.output
+    capped = runner.invoke(app, ["sql", "SELECT * FROM range(50) t(x)", "--format", "csv", "--limit", "5"])
+    assert capped.exit_code == 0 and capped.stdout.split() == ["x", "0", "1", "2", "3", "4"]
+    assert "more are left" in capped.stderr
 
 
 def test_report_writes_the_page_or_lists_the_closest_ids(tmp_path, monkeypatch):

@@ -206,14 +206,39 @@ def test_query_reads_the_snapshot_and_refuses_writes(tmp_path, eager):
         snapshot.query("SELECT 1", warehouse_path=path)
     with Warehouse(path) as wh:
         wh.write(_batch(0))
-        cols, rows = snapshot.query("SELECT kind, count(*) AS n FROM artifacts GROUP BY kind", warehouse_path=path)
-        assert cols == ["kind", "n"] and rows == [("clip", PER_BATCH)]  # while the writer holds the main file
+        cols, rows, more = snapshot.query("SELECT kind, count(*) AS n FROM artifacts GROUP BY kind", warehouse_path=path)
+        assert cols == ["kind", "n"] and rows == [("clip", PER_BATCH)] and not more  # while the writer holds the main file
         with pytest.raises(WarehouseError) as caught:
             snapshot.query("DELETE FROM artifacts", warehouse_path=path)
         assert "read-only" in str(caught.value) and "\n" not in str(caught.value)
         with pytest.raises(WarehouseError, match="Parser Error"):
             snapshot.query("SELEC 1", warehouse_path=path)
     assert snapshot.query("SELECT count(*) FROM artifacts WHERE bytes < $n", {"n": 10}, path)[1] == [(10,)]
+
+
+def test_query_neither_writes_nor_reads_files_and_stops_at_its_limit(tmp_path):
+    """A hostile user's `worldline sql "COPY (SELECT 1) TO '<the warehouse>'"` replaced the
+    warehouse with a CSV file through the read-only connection; read_text printed any file."""
+    path = tmp_path / "lineage.duckdb"
+    with Warehouse(path) as wh:
+        wh.write(_batch(0))
+    before = path.read_bytes()
+    secret = tmp_path / "secret.txt"
+    secret.write_text("not for sql")
+    for statement in (f"COPY (SELECT 1 AS x) TO '{path}' (FORMAT csv)", f"COPY artifacts TO '{tmp_path / 'leak.csv'}'",
+                      f"EXPORT DATABASE '{tmp_path / 'exported'}'", f"SELECT * FROM read_text('{secret}')",
+                      f"SELECT * FROM glob('{tmp_path}/*')"):
+        with pytest.raises(WarehouseError) as caught:
+            snapshot.query(statement, warehouse_path=path)
+        assert "\n" not in str(caught.value), statement
+    assert path.read_bytes() == before
+    assert not (tmp_path / "leak.csv").exists() and not (tmp_path / "exported").exists()
+    for empty in ("", " ; "):
+        with pytest.raises(WarehouseError, match="no SQL statement given"):
+            snapshot.query(empty, warehouse_path=path)
+    cols, rows, more = snapshot.query("SELECT * FROM range(1000000000) t(x)", warehouse_path=path, limit=3)
+    assert cols == ["x"] and rows == [(0,), (1,), (2,)] and more  # streamed: a billion rows are not held
+    assert snapshot.query("SELECT * FROM range(3) t(x)", warehouse_path=path, limit=3)[2] is False
 
 
 def test_open_snapshot_follows_the_settings(tmp_path, monkeypatch):
