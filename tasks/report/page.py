@@ -42,6 +42,10 @@ VIDEO_KINDS = ("clip", "episode_video")
 CLOSEST = 5
 
 
+PAGE_START = "<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+GENERATOR = "worldline report"
+
+
 class UnknownId(InvalidInput):
     """No run or artifact has this id, or several start with it; the message lists the
     closest ids (``matches``)."""
@@ -191,7 +195,10 @@ class Page:
                 "</figcaption></figure>")
 
     def path(self, uri: str) -> Path:
-        return (self.data_root / uri).resolve()
+        try:
+            return (self.data_root / uri).resolve()
+        except (OSError, RuntimeError):  # a symlink loop (a quarantined input): the path as recorded
+            return Path(os.path.abspath(self.data_root / uri))
 
     def link(self, uri: str | None) -> Raw:
         """A file:// link to a file lineage recorded, marked when it is not on disk."""
@@ -229,7 +236,7 @@ class Page:
         return "".join(out)
 
     def html(self, title: str, subtitle: str) -> str:
-        return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
+        return (f"{PAGE_START}<meta name=\"generator\" content=\"{GENERATOR}\">"
                 "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
                 f"<title>{esc(title)}</title><style>{STYLE}</style></head><body>"
                 f"<h1>{esc(title)}</h1><p class=\"sub\">{subtitle}</p>{''.join(self.parts)}</body></html>\n")
@@ -342,6 +349,25 @@ def build_report(warehouse: Warehouse, given: str, data_root: Path | str | None 
     return Report(subject, title, page.html(title, subtitle), page.images)
 
 
+def check_out_path(path: Path) -> None:
+    """InvalidInput, in one line, unless ``path`` is new or a report page written before: a
+    folder, a device or any other file is not replaced (`--out lineage.duckdb` replaced the
+    warehouse with the page)."""
+    if not path.exists() and not path.is_symlink():
+        return
+    if path.is_dir():
+        raise InvalidInput(f"--out {path}: a folder; give the page's file path")
+    if not path.is_file():
+        raise InvalidInput(f"--out {path}: not a regular file; not replaced")
+    try:
+        with open(path, "rb") as f:
+            head = f.read(512).decode("utf-8", errors="replace")
+    except OSError as exc:
+        raise InvalidInput(f"--out {path}: cannot be read ({exc.strerror}); not replaced") from None
+    if not (head.startswith(PAGE_START) and (GENERATOR in head or "<meta name=\"viewport\"" in head[len(PAGE_START):][:80])):
+        raise InvalidInput(f"--out {path}: exists and is not a Worldline report page; not replaced (give a new path)")
+
+
 def write_report(warehouse: Warehouse | Path | str, id_or_prefix: str, out_path: Path | str | None = None,
                  data_root: Path | str | None = None, images_dir: Path | str | None = None) -> Path:
     """Write the page of the run or artifact ``id_or_prefix`` names to ``out_path`` (atomically;
@@ -354,12 +380,18 @@ def write_report(warehouse: Warehouse | Path | str, id_or_prefix: str, out_path:
             return write_report(wh, id_or_prefix, out_path, data_root if data_root is not None else Path(warehouse).parent,
                                 images_dir)
     root = Path(data_root) if data_root is not None else Path(getattr(warehouse, "source", warehouse.path)).parent
+    if out_path is not None:
+        check_out_path(Path(out_path))
     report = build_report(warehouse, id_or_prefix, root)
     out_path = Path(out_path) if out_path is not None else default_path(root, report.subject.id)
     out_path.parent.mkdir(parents=True, exist_ok=True)
     tmp = out_path.with_name(f".{out_path.name}.{os.getpid()}.tmp")
-    tmp.write_text(report.html, encoding="utf-8")
-    os.replace(tmp, out_path)
+    try:
+        tmp.write_text(report.html, encoding="utf-8")
+        os.replace(tmp, out_path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)  # no half page left beside it
+        raise
     if images_dir is not None:
         folder = Path(images_dir)
         folder.mkdir(parents=True, exist_ok=True)
