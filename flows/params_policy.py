@@ -148,6 +148,8 @@ class TrainPolicyParams(DeviceParams):
                 raise Refused("{encoder}: a state policy reads the simulator, it has no image encoder; add {observe}")
         elif self.encoder_layer != "latent":
             raise Refused("{encoder_layer}: only a tokenizer encoder has layers to choose; add {encoder} tokenizer:...")
+        if self.dagger and self.observe is None:
+            raise Refused("{dagger}: DAgger rounds train a vision policy; add {observe} (a state policy has none)")
         if self.dagger_gate != DAGGER_GATE and not (self.dagger and self.observe):
             raise Refused("{dagger_gate} gates the DAgger rounds of a vision policy; add {observe} and {dagger}")
         return self

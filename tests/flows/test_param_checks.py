@@ -94,6 +94,8 @@ CHECKS = [
     (train_policy, {"manifest": PUSH, "observe": "side", "dagger_gate": 0.5},
      ["train-policy", PUSH, "--observe", "side", "--dagger-gate", "0.5"],
      "gates the DAgger rounds of a vision policy; add"),
+    (train_policy, {"manifest": PUSH, "dagger": 2}, ["train-policy", PUSH, "--dagger", "2"],
+     "DAgger rounds train a vision policy; add"),
     (loop, {"manifest": PUSH, "policy": "scripted"}, ["loop", PUSH, "--policy", "scripted"],
      "policy 'scripted': the loop post-trains learned policies"),
     (simulate, {"manifest": PUSH, "episodes": 0}, ["simulate", PUSH, "--episodes", "0"],
