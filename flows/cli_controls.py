@@ -2,8 +2,30 @@
 
 from __future__ import annotations
 
+import os
+import tempfile
+from pathlib import Path
+
 from flows.cli_shell import app, command, fail, out, writing
 from flows.params_data import ControlsParams
+
+
+def check_out(folder: str) -> None:
+    """Refuse, in one line naming --out, a folder that is not one or cannot be made, before any
+    work; nothing is left behind (a folder made to try it is removed at once)."""
+    path = Path(folder)
+    if os.path.lexists(path) and not path.is_dir():
+        fail(f"--out {folder}: exists and is not a folder")
+    base = path
+    while not os.path.lexists(base) and base != base.parent:  # the nearest part that exists
+        base = base.parent
+    if not base.is_dir():
+        fail(f"--out {folder}: cannot be created: {base} is not a folder")
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".worldline-out-", dir=base))
+    except OSError as exc:
+        what = "cannot be written" if base == path else f"cannot be created in {base}"
+        fail(f"--out {folder}: {what}: {exc.strerror}")
 
 
 @command(app, ControlsParams)
@@ -14,6 +36,8 @@ def controls(params: ControlsParams) -> None:
     from tasks.controls.check import ControlError
     from tasks.controls.sources import find_sources
 
+    if params.out is not None:
+        check_out(params.out)
     try:
         find_sources(params.source, params.out)
     except ControlError as exc:

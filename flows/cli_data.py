@@ -13,7 +13,7 @@ import typer
 from flows import cli_checks as need
 from flows.cli_shell import FORMAT, app, check_format, command, fail, out, print_rows, writing
 from flows.params_data import CorpusParams, CurateParams, SimulateParams
-from schemas.errors import EXIT_ENVIRONMENT, EXIT_PARTIAL
+from schemas.errors import EXIT_ENVIRONMENT, EXIT_PARTIAL, WorldlineError
 
 JSON = typer.Option(False, "--json", hidden=True, help="the same as --format json")
 CONFIG = typer.Option(None, help="YAML overrides of CurateConfig")
@@ -139,11 +139,20 @@ def inspect(video: Path, fmt: str = FORMAT, as_json: bool = JSON, config: Option
     (csv: tags and scores as JSON text; json: the decode report too)."""
     from schemas.hashing import sha256_file
     from tasks.curate.analyse import analyse_video
+    from tasks.curate.decode import DecodeError
 
     check_format(fmt := "json" if as_json else fmt)
     need.video(video)
     scenario = need.manifest(manifest) if manifest else None
-    result = analyse_video(video, sha256_file(str(video)), need.curate_config(config), scenario)
+    cfg = need.curate_config(config)
+    try:
+        result = analyse_video(video, sha256_file(str(video)), cfg, scenario)
+    except WorldlineError:
+        raise  # its own line and exit code (Commands)
+    except DecodeError as exc:  # names the file already
+        fail(str(exc))
+    except ValueError as exc:  # a video the filters cannot judge (frames under 16x16 px): curate quarantines it
+        fail(f"{video}: {exc}")
     rows = [{"clip_id": c.clip_id, "start_frame": c.start_frame, "end_frame": c.end_frame,
              "start_s": round(c.start_s, 3), "end_s": round(c.end_s, 3), "kept": c.kept,
              "stage": c.reject_stage, "reason": c.reject_reason, "tags": list(c.tags),

@@ -21,7 +21,7 @@ from flows.console import FORMATS, err, out, print_rows, set_verbose  # noqa: F4
 from flows.params import FlowParams, ParamsError, Refused
 from flows.server_found import find_running_server
 from schemas.errors import EXIT_ENVIRONMENT, EXIT_INVALID, WorldlineError
-from schemas.settings import Settings
+from schemas.settings import Settings, SettingsError
 
 
 class Commands(TyperGroup):
@@ -127,7 +127,10 @@ def options(
         os.environ["WORLDLINE_DATA_ROOT"] = str(data_root)
         if os.environ.get("PREFECT_HOME") == ours:  # not the user's own: it follows the data root
             del os.environ["PREFECT_HOME"]
-        flows.configure_prefect()
+        try:
+            flows.configure_prefect()
+        except SettingsError as exc:  # a data root that is a file, or cannot be made: one line, not a traceback
+            fail(f"--data-root {data_root}: {exc}")
     find_running_server()  # before Prefect is imported: it reads PREFECT_API_URL once
 
 
