@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
-from flows.params import Episodes, FlowParams, Fps, Height, Minutes, Seed, Width
+from flows.params import Episodes, FlowParams, Fps, Height, Minutes, Refused, Seed, Width
 
 
 class RegisterParams(FlowParams):
@@ -30,6 +30,17 @@ class CorpusParams(FlowParams):
     width: Width = 640
     height: Height = 360
     fps: Fps = 30.0
+
+    @model_validator(mode="after")
+    def _even_size(self):
+        # tasks/corpus/generate.py writes 4:2:0 H.264, whose frames have even sides: it refuses
+        # an odd size only when the flow has started.
+        for field in ("width", "height"):
+            value = getattr(self, field)
+            if value % 2:
+                raise Refused(f"{{{field}}}: {value} is odd; the corpus videos (H.264, 4:2:0) need an even width "
+                              f"and height")
+        return self
 
 
 class CurateParams(FlowParams):

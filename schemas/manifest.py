@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import re
 from functools import cached_property
 from pathlib import PurePosixPath
@@ -26,6 +27,17 @@ AISLE_HALF_WIDTH_M = 0.6
 # (difference of the unit view directions), have one pose: they would record the same view.
 SAME_POSITION_M = 1e-3
 SAME_DIRECTION = 1e-3
+# The fewest frames the horizon must give every camera (ScenarioManifest._horizon_films_every_camera).
+MIN_CAMERA_FRAMES = 2
+# The rate `worldline simulate` steps the controller at (tasks/sim/scene.py SimConfig.control_hz,
+# tests/schemas/test_manifest.py keeps the two equal): an episode needs one step at least.
+CONTROL_HZ = 50.0
+
+
+def camera_frames(horizon_s: float, fps: float) -> int:
+    """The frames an episode of ``horizon_s`` records of a camera at ``fps``: the count
+    tasks/sim/episode.py `rollout` renders and writes."""
+    return int(math.floor(horizon_s * fps + 1e-9))
 
 
 class FieldError(ValueError):
@@ -290,6 +302,26 @@ class ScenarioManifest(Frozen):
         if len(set(kinds)) != len(kinds):
             raise ValueError(f"stressor kinds repeat: {sorted(kinds)}")
         return tuple(sorted(value, key=lambda s: s.kind))
+
+    @model_validator(mode="after")
+    def _horizon_films_every_camera(self) -> "ScenarioManifest":
+        # tasks/sim/episode.py records floor(horizon_s * fps) frames of each camera (the same
+        # 1e-9 slack), and its video writer refuses a camera with none: a horizon shorter than a
+        # camera's frame passed validation and crashed `simulate` after making the episode's
+        # folder. Two frames at least, so every camera's video shows some motion; and one control
+        # step, or the episode's step table has no rows to write.
+        for i, cam in enumerate(self.cameras):
+            frames = camera_frames(self.horizon_s, cam.fps)
+            if frames < MIN_CAMERA_FRAMES:
+                raise FieldError("horizon_s", f"{self.horizon_s:g} s gives camera {cam.name!r} (cameras.{i}, "
+                                              f"{cam.fps:g} fps) {frames} frame(s): simulate records floor(horizon_s "
+                                              f"* fps) frames a camera and needs at least {MIN_CAMERA_FRAMES}, so "
+                                              f"horizon_s must be at least {MIN_CAMERA_FRAMES / cam.fps:g} s")
+        if round(self.horizon_s * CONTROL_HZ) < 1:  # as rollout counts its steps
+            raise FieldError("horizon_s", f"{self.horizon_s:g} s is shorter than one control step: simulate steps "
+                                          f"round(horizon_s * {CONTROL_HZ:g}) times and needs at least one, so "
+                                          f"horizon_s must be at least {1 / CONTROL_HZ:g} s")
+        return self
 
     @model_validator(mode="after")
     def _unique_cameras(self) -> "ScenarioManifest":

@@ -21,6 +21,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -28,6 +29,7 @@ from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from schemas import paths
 from schemas.hashing import sha256_file, stable_id
+from schemas.manifest import FieldError
 from schemas.records import ArtifactRecord, ClipRecord, EdgeRecord, LineageBatch, ShardRecord
 from tasks import faults
 
@@ -83,9 +85,12 @@ class ShardConfig(BaseModel):
     max_bytes: int = Field(paths.SHARD_MAX_BYTES, gt=0, description="cap per file (estimated from clip bytes)")
     max_clips: int = Field(paths.SHARD_MAX_CLIPS, gt=0)
     embed_clips: bool = Field(True, description="store each clip's encoded MP4 in clip_bytes")
-    resolutions: tuple[tuple[int, str], ...] = RESOLUTIONS  # (minimum short side, name), largest first
+    # (minimum short side, name), largest first; one at least: a clip below the last is "lt<name>"
+    resolutions: tuple[tuple[int, str], ...] = Field(RESOLUTIONS, min_length=1)
     length_edges: tuple[float, ...] = LENGTH_EDGES  # seconds, increasing
-    compression: str = "zstd"
+    # Parquet's codecs with levels, as pyarrow's writer (pq.write_table) names them: the writer
+    # sets compression_level on every packed column, which pyarrow refuses for none and snappy
+    compression: Literal["gzip", "brotli", "lz4", "zstd"] = "zstd"
     compression_level: int = 3
     row_group_rows: int = Field(256, gt=0)
 
@@ -96,6 +101,16 @@ class ShardConfig(BaseModel):
             raise ValueError("resolutions must be listed largest short side first, without repeats")
         if list(self.length_edges) != sorted(set(self.length_edges)) or not self.length_edges:
             raise ValueError("length_edges must be increasing seconds")
+        return self
+
+    @model_validator(mode="after")
+    def _level_fits_codec(self) -> "ShardConfig":
+        # pyarrow refuses a level outside its codec's range (gzip 12) only when it writes.
+        low = pa.Codec.minimum_compression_level(self.compression)
+        high = pa.Codec.maximum_compression_level(self.compression)
+        if not low <= self.compression_level <= high:
+            raise FieldError("compression_level", f"{self.compression_level} is outside {self.compression}'s "
+                                                  f"levels, {low} to {high}")
         return self
 
 

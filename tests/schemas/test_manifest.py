@@ -98,3 +98,40 @@ def test_the_manifest_hash_is_computed_once_and_a_changed_copy_has_its_own():
     changed = manifest.model_copy(update={"seed": manifest.seed + 1})
     assert changed.sha256 != manifest.sha256
     assert changed.sha256 == ScenarioManifest.model_validate(changed.model_dump()).sha256
+
+
+@pytest.mark.parametrize("horizon_s, problem", [
+    (0.001, "0.001 s gives camera 'front_left' (cameras.0, 30 fps) 0 frame(s)"),  # crashed simulate's writer
+    (0.05, "0.05 s gives camera 'front_left' (cameras.0, 30 fps) 1 frame(s)"),
+])
+def test_a_horizon_under_two_frames_of_a_camera_is_refused_in_one_line(horizon_s, problem):
+    from tasks.manifests import ManifestError, parse_text
+
+    import yaml
+
+    with pytest.raises(ManifestError) as info:
+        parse_text(yaml.safe_dump({**BASE, "horizon_s": horizon_s}), "m.yaml")
+    line = str(info.value)
+    assert "\n" not in line and line.startswith("m.yaml: horizon_s: ") and problem in line
+    assert "at least 2, so horizon_s must be at least 0.0666667 s" in line
+
+
+def test_the_horizon_rule_counts_frames_as_simulate_records_them():
+    from schemas.manifest import CONTROL_HZ, camera_frames
+    from tasks.sim.scene import SimConfig
+
+    assert CONTROL_HZ == SimConfig().control_hz
+    assert camera_frames(0.2, 10) == 2 and camera_frames(0.19, 10) == 1 and camera_frames(0.1, 30) == 3
+    one_camera = {**BASE, "cameras": [BASE["cameras"][0]], "stressors": [], "rigs": []}
+    assert _with(**{**one_camera, "horizon_s": 2 / 30}).horizon_s == 2 / 30  # exactly two frames pass
+    fast = {**one_camera, "cameras": [{**BASE["cameras"][0], "fps": 240}]}
+    assert _with(**{**fast, "horizon_s": 0.02}).horizon_s == 0.02  # one control step
+    with pytest.raises(ValidationError, match="shorter than one control step"):
+        _with(**{**fast, "horizon_s": 0.01})  # 2.4 frames, but round(0.01 * 50) == 0 steps
+
+
+def test_every_shipped_manifest_films_every_camera():
+    paths = sorted((REPO / "manifests").glob("*.yaml"))  # manifests/grids holds panel grids, not manifests
+    assert len(paths) > 5
+    for path in paths:
+        load(path)

@@ -1,5 +1,7 @@
 """CurateConfig: keys, decoder threads chosen for a batch, and YAML overrides read safely."""
 
+import re
+
 import pytest
 
 from tasks.curate.config import ConfigError, CurateConfig, load_config
@@ -54,3 +56,40 @@ def test_bad_overrides_name_the_file_and_the_problem(tmp_path, text, problem):
 def test_a_missing_config_file_is_named(tmp_path):
     with pytest.raises(ConfigError, match="nope.yaml: no such file"):
         load_config(tmp_path / "nope.yaml")
+
+
+@pytest.mark.parametrize("text, problem", [
+    # Both crashed curate after the clips were cut: ArrowException, IndexError (issue: bad shard config).
+    ('shards: {compression: "bogus"}\n',
+     "shards.compression: Input should be 'gzip', 'brotli', 'lz4' or 'zstd'$"),
+    ("shards: {resolutions: []}\n", r"shards\.resolutions: Tuple should have at least 1 item after validation, not 0$"),
+    # pyarrow refuses any level for these, and the writer always sets one (ArrowInvalid before).
+    ("shards: {compression: snappy}\n", "shards.compression: Input should be 'gzip', 'brotli', 'lz4' or 'zstd'$"),
+    ("shards: {compression: none}\n", "shards.compression: Input should be 'gzip', 'brotli', 'lz4' or 'zstd'$"),
+    ("shards: {compression: gzip, compression_level: 12}\n", r"shards\.compression_level: 12 is outside gzip's levels, 1 to 9$"),
+])
+def test_shard_settings_the_writer_cannot_use_are_refused_in_one_line(tmp_path, text, problem):
+    path = tmp_path / "curate.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    line = str(info.value)
+    assert "\n" not in line and line.startswith(f"{path}: ") and re.search(problem, line), line
+
+
+@pytest.mark.parametrize("codec", ["gzip", "brotli", "lz4", "zstd"])
+def test_every_codec_the_config_takes_writes_a_shard(tmp_path, codec):
+    import pyarrow as pa
+
+    from schemas.records import ClipRecord
+    from tasks.curate.shards import ShardConfig, read_shard, write_shards
+
+    path = tmp_path / "curate.yaml"
+    path.write_text(f"shards: {{compression: {codec}, resolutions: [[100, small]]}}\n")
+    config = load_config(path).shards
+    assert pa.Codec.is_available(codec) and config == ShardConfig(compression=codec, resolutions=((100, "small"),))
+    clip = ClipRecord(clip_id="c0", source_id="s0", source_uri="raw/a.mp4", start_frame=0, end_frame=30, start_s=0.0,
+                      end_s=1.0, fps=30.0, width=64, height=48, scores={}, tags=(), caption="a clip")
+    shards = write_shards([clip], tmp_path, "ab" * 32, config.model_copy(update={"embed_clips": False}))
+    assert [s.uri.split("/")[-3] for s in shards] == ["ltsmall"]
+    assert read_shard(tmp_path / shards[0].uri).num_rows == 1
