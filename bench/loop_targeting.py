@@ -90,6 +90,8 @@ def main() -> None:
     parser.add_argument("--per-cell", type=int, default=12)
     parser.add_argument("--post-steps", type=int, default=800)
     parser.add_argument("--start-seed", type=int, default=0, help="training seed of the starting policy")
+    parser.add_argument("--shift", type=int, default=0,
+                        help="random-shift augmentation in pixels, for the start and every post-training (0: none)")
     args = parser.parse_args()
     started = time.perf_counter()
     path, cameras = FAMILIES[args.family]
@@ -97,7 +99,7 @@ def main() -> None:
     spec_obs = ObservationSpec(cameras=cameras, image_size=64)
     seeds = list(range(parent.seed + TRAIN, parent.seed + TRAIN + args.start_episodes))
     demos = vision.collect(parent, seeds, spec_obs)
-    config = bc.TrainConfig(steps=args.steps, batch_size=64, seed=args.start_seed)
+    config = bc.TrainConfig(steps=args.steps, batch_size=64, seed=args.start_seed, shift=args.shift)
     model, _ = vision_train.train_vision(demos, spec_obs, config)
     start = vision.VisionPolicy(model, spec_obs, {"manifest_hash": parent.sha256, "train_seeds": seeds})
     spec, variants = panel(parent, args.per_cell)
@@ -106,7 +108,8 @@ def main() -> None:
     print(f"# loop_targeting ({time.strftime('%Y-%m-%d')}): {parent.name}, vision policy on {', '.join(cameras)}; "
           f"start: {args.start_episodes} demonstrations, {args.steps} steps (seed {args.start_seed}); "
           f"budget {args.budget} per arm, "
-          f"{args.repeats} repeats, post-training {args.post_steps} steps; {args.per_cell} panel seeds per cell")
+          f"{args.repeats} repeats, post-training {args.post_steps} steps; {args.per_cell} panel seeds per cell"
+          + (f"; random shift {args.shift} px" if args.shift else ""))
     failed = [c for c in ORDER if np.mean(before[c]) < 0.9]
     reached: dict[str, int | None] = {arm: None for arm in ("targeted", "nominal", "uniform")}
     for budget in sorted(args.budget):
@@ -136,7 +139,8 @@ def run_arms(args, parent, start, spec, variants, grid, before, budget: int) -> 
                 targeted_cells = [m.name.rsplit("--", 1)[1] for m in made]
             new = posttrain.demonstrations(parent, start, made, counts, note=lambda line: print(f"  {line}"))
             folder = Path(scratch) / f"{arm}_{r}"
-            posttrain.post_train(start, new, bc.TrainConfig(steps=args.post_steps, batch_size=64, seed=r), folder,
+            posttrain.post_train(start, new, bc.TrainConfig(steps=args.post_steps, batch_size=64, seed=r, shift=args.shift),
+                                 folder,
                                  parent, {})
             outcomes = evaluate(spec, variants, vision.VisionPolicy.from_checkpoint(folder))
             for cell in outcomes:

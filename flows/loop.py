@@ -34,6 +34,7 @@ from tasks.policy import bc, posttrain
 from tasks.policy.features import FEATURES_VERSION
 from tasks.policy.lineage import checkpoint_lineage
 from tasks.policy.specs import load_policy
+from tasks.policy.vision import VisionPolicy
 from warehouse import queries
 
 STAGE = "post_train_policy"
@@ -69,7 +70,9 @@ def generate(derived: ScenarioManifest, path: Path, n: int, root: Path) -> dict:
 def post_train_policy(run: RunContext, parent: ScenarioManifest, old: posttrain.Learned, old_id: str,
                       derived: list[ScenarioManifest], counts: list[int], post_steps: int, root: Path) -> tuple[str, Path]:
     """The old policy fine-tuned on the derived manifests' demonstrations; a finished one is reused."""
-    config = bc.TrainConfig(steps=post_steps)
+    # A vision policy trained with random shifts keeps them (its checkpoint's train config).
+    config = bc.TrainConfig(steps=post_steps, shift=old.meta.get("train", {}).get("shift", 0)
+                            if isinstance(old, VisionPolicy) else 0)
     digests = [m.sha256 for m in derived]
     key = stable_id(STAGE, old_id, content_hash(config), str(FEATURES_VERSION),
                     *(f"{d}:{n}" for d, n in zip(digests, counts)))

@@ -119,6 +119,9 @@ class TrainPolicyParams(DeviceParams):
     encoder_layer: Literal["latent", "hidden"] = Field(
         "latent", description="with a tokenizer encoder: its latents (what the world model reads) or its last hidden "
                               "features")
+    shift: Annotated[int, Field(ge=0, le=16)] = Field(
+        0, description="a vision policy's training frames each moved by up to this many pixels, a new draw every "
+                       "step (random-shift augmentation; 0: none; post-training in the loop keeps it)")
     cli_arguments = ("manifest",)
     cli_paths = ("manifest",)
     cli_names = {"preset_name": "--preset"}
@@ -148,6 +151,9 @@ class TrainPolicyParams(DeviceParams):
                 raise Refused("{encoder}: a state policy reads the simulator, it has no image encoder; add {observe}")
         elif self.encoder_layer != "latent":
             raise Refused("{encoder_layer}: only a tokenizer encoder has layers to choose; add {encoder} tokenizer:...")
+        if self.shift and (self.observe is None or self.encoder != "cnn"):
+            raise Refused("{shift} moves a vision policy's frames for its own convolutions; add {observe}, with "
+                          "{encoder} cnn (a tokenizer encoder's features are computed once per frame)")
         if self.dagger and self.observe is None:
             raise Refused("{dagger}: DAgger rounds train a vision policy; add {observe} (a state policy has none)")
         if self.dagger_gate != DAGGER_GATE and not (self.dagger and self.observe):

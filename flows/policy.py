@@ -74,7 +74,7 @@ def train_seeing(scenario, spec, seeds: list[int], rounds: list[list[int]], conf
 def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, preset_name: str = "tiny", seed: Seed = 0,
                  holdout: Holdout = 10, observe: str | None = None, image_size: Side = 64, dagger: int = 0,
                  dagger_gate: float = vision_train.DAGGER_GATE, encoder: str = "cnn", encoder_layer: str = "latent",
-                 device: str | None = None) -> dict:
+                 shift: int = 0, device: str | None = None) -> dict:
     """Behaviour-clone the scripted controller of ``manifest`` from ``episodes`` demonstrations;
     with ``observe``, a vision policy on those cameras, then ``dagger`` DAgger rounds, gated at
     ``dagger_gate`` (0: plain DAgger).
@@ -85,7 +85,7 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
     scenario = load_manifest(Path(manifest))
     checks.check_scenario(scenario)
     spec, on = checks.spec(), checks.torch_device()
-    config = bc.TrainConfig(preset=preset_name, steps=steps, seed=seed, batch_size=64 if spec else 256)
+    config = bc.TrainConfig(preset=preset_name, steps=steps, seed=seed, batch_size=64 if spec else 256, shift=shift)
     train_seeds = list(range(scenario.seed + TRAIN_OFFSET, scenario.seed + TRAIN_OFFSET + episodes))
     test_seeds = list(range(scenario.seed + HOLDOUT_OFFSET, scenario.seed + HOLDOUT_OFFSET + holdout))
     per_round = max(4, episodes // 2)
@@ -95,7 +95,7 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
                       params={"manifest": manifest, "episodes": episodes, "steps": steps, "preset": preset_name,
                               "seed": seed, "holdout": holdout, "observe": observe, "image_size": image_size,
                               "dagger": dagger, "dagger_gate": dagger_gate, "encoder": encoder,
-                              "encoder_layer": encoder_layer}) as run:
+                              "encoder_layer": encoder_layer, **({"shift": shift} if shift else {})}) as run:
         tok_id, tokenizer = None, None
         if checks.tokenizer():
             tok_folder, tok_id = inputs.tokenizer_folder(run.warehouse, root, checks.tokenizer(), None)
@@ -130,6 +130,7 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
                 attrs |= {"observe": list(spec.cameras), "image_size": spec.image_size, "dagger_seeds": rounds,
                           "dagger_learner_success": [r for _, r in learner], "encoder": "tokenizer" if tok_id else "cnn"}
                 attrs |= {"dagger_gate": gate} if rounds else {}
+                attrs |= {"shift": shift} if shift else {}
                 attrs |= {"tokenizer_id": tok_id, "encoder_layer": encoder_layer} if tok_id else {}
             batch = checkpoint_lineage(checkpoint_id, folder / bc.WEIGHTS_FILE, root, stage.id, run.manifest_hash,
                                        {"model": model_name, **attrs},

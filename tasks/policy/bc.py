@@ -22,7 +22,7 @@ from typing import Any
 import mujoco
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_serializer
 from scipy import special
 
 import tasks.sim  # noqa: F401  (sets MUJOCO_GL before mujoco loads)
@@ -48,6 +48,18 @@ class TrainConfig(BaseModel):
     lr: float = Field(1e-3, gt=0, le=1)
     seed: int = 0
     threads: int = Field(1, ge=1, le=64)
+    # Vision policies only: each training frame shifted by up to this many pixels (its edge
+    # rows repeated), a new draw every step (random-shift augmentation, as DrQ and RAD use for
+    # control from pixels). 0: none. Not with a tokenizer encoder, whose features are cached.
+    shift: int = Field(0, ge=0, le=16)
+
+    @model_serializer(mode="wrap")
+    def _shift_only_when_set(self, handler):
+        # Left out at 0: the configs, checkpoint ids and stage keys made before it existed stay as they were.
+        data = handler(self)
+        if not self.shift:
+            data.pop("shift", None)
+        return data
 
 
 @dataclass(frozen=True)

@@ -75,16 +75,35 @@ def train_vision(demos: VisionDemonstrations, spec: ObservationSpec, config: Tra
         frames, state = frames.to(device), state.to(device)
         target = ((act.to(device) - model.act_mean) / model.act_std)
         cached = frozen_features(model, frames) if model.config.encoder == "tokenizer" else None
+        if config.shift and cached is not None:
+            raise ValueError("shift augmentation needs the policy's own convolutions: a tokenizer encoder's "
+                             "features are computed once per frame")
+        shifts = torch.Generator().manual_seed(config.seed + 7919)  # its own stream: minibatches stay as without
 
         def loss(b: torch.Tensor) -> torch.Tensor:
+            seen = random_shift(frames[b.to(device)], config.shift, shifts) if config.shift else frames[b.to(device)]
             b = b.to(device)
             frozen = None if cached is None else cached[b]
-            return torch.nn.functional.mse_loss(model.forward_normalised(frames[b], state[b], frozen), target[b])
+            return torch.nn.functional.mse_loss(model.forward_normalised(seen, state[b], frozen), target[b])
 
         history = fit(model, loss, len(frames), config, log)
         return model.eval(), history
     finally:
         torch.set_num_threads(threads)
+
+
+def random_shift(frames: torch.Tensor, pad: int, generator: torch.Generator) -> torch.Tensor:
+    """``frames`` (B x cameras x 3 x H x W) each moved by a whole number of pixels, up to ``pad``
+    either way in x and y (drawn per sample and camera on the CPU), the picture's edge rows and
+    columns repeated where it moved away from the border: a pad-and-crop with replicated edges."""
+    b, c, _, h, w = frames.shape
+    dy, dx = (torch.randint(-pad, pad + 1, (2, b, c), generator=generator)).to(frames.device)
+    rows = (torch.arange(h, device=frames.device) + dy[..., None]).clamp(0, h - 1)  # B x C x H
+    cols = (torch.arange(w, device=frames.device) + dx[..., None]).clamp(0, w - 1)  # B x C x W
+    index = rows[:, :, None, :, None] * w + cols[:, :, None, None, :]  # B x C x 1 x H x W
+    flat = frames.reshape(b, c, frames.shape[2], h * w)
+    return flat.gather(3, index.expand(-1, -1, frames.shape[2], -1, -1).reshape(b, c, frames.shape[2], h * w)
+                       ).reshape(frames.shape)
 
 
 def dagger(manifest: ScenarioManifest, spec: ObservationSpec, demos: VisionDemonstrations, model: VisionPolicyNet,

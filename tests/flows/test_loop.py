@@ -98,8 +98,9 @@ def test_the_loop_post_trains_a_vision_policy_on_what_its_cameras_saw(prefect_ha
     manifest, grid = _manifest(tmp_path), tmp_path / "grid.yaml"
     grid.write_text(GRID)
     scenario, spec = load(manifest), ObservationSpec(cameras=("overhead",), image_size=32)
-    model, _ = vision_train.train_vision(vision.collect(scenario, [5], spec), spec, TrainConfig(steps=4, batch_size=16))
-    vision_train.save_checkpoint(model, spec, tmp_path / "eyes", scenario, TrainConfig(steps=4))
+    trained = TrainConfig(steps=4, batch_size=16, shift=2)  # random shifts, which post-training keeps
+    model, _ = vision_train.train_vision(vision.collect(scenario, [5], spec), spec, trained)
+    vision_train.save_checkpoint(model, spec, tmp_path / "eyes", scenario, trained)
     result = loop(str(manifest), f"vision:{tmp_path / 'eyes'}", str(grid), worst=1, new_episodes=2, post_steps=4,
                   control=True)
     # The untargeted control: the same budget on the manifest as it is, evaluated beside it.
@@ -111,6 +112,7 @@ def test_the_loop_post_trains_a_vision_policy_on_what_its_cameras_saw(prefect_ha
     new = vision.VisionPolicy.from_checkpoint(result["checkpoint"])
     assert new.spec == spec and new.meta["posttrained_from"] == result["old_checkpoint_id"]
     assert new.meta["demonstrations"] > 0 and "/vision-policy/" in result["checkpoint"]
+    assert new.meta["train"]["shift"] == control.meta["train"]["shift"] == 2
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         _, rows = wh.query("SELECT attrs->>'model' FROM artifacts WHERE artifact_id = $c", {"c": result["checkpoint_id"]})
         _, edges = wh.query("SELECT DISTINCT relation FROM edges WHERE child_id = $c ORDER BY 1",

@@ -11,7 +11,7 @@ from tasks.policy.bc import TrainConfig
 from tasks.policy.specs import PolicySpecError, load_policy
 from tasks.policy.vision import VisionPolicy, collect
 from tasks.policy.vision_obs import ObservationSpec, Observer, parse_cameras, proprio
-from tasks.policy.vision_train import dagger, load_checkpoint, save_checkpoint, train_vision
+from tasks.policy.vision_train import dagger, load_checkpoint, random_shift, save_checkpoint, train_vision
 from tasks.sim.control import ArmController
 from tasks.sim.scene import build_scene
 
@@ -114,6 +114,35 @@ def test_training_fits_and_a_checkpoint_acts_the_same_after_loading(demos, tmp_p
     with pytest.raises(PolicySpecError, match="not a vision-policy checkpoint"):
         load_policy(f"vision:{tmp_path}")
 
+
+
+def test_random_shift_moves_each_picture_whole_and_repeats_its_edges():
+    frames = torch.randint(0, 256, (6, 2, 3, 8, 8), dtype=torch.uint8)
+    moved = random_shift(frames, 2, torch.Generator().manual_seed(3))
+    assert moved.shape == frames.shape and moved.dtype == torch.uint8
+    assert torch.equal(moved, random_shift(frames, 2, torch.Generator().manual_seed(3)))
+    found = set()
+    for i in range(6):
+        for c in range(2):  # each (sample, camera) is its picture moved by one (dy, dx), all channels alike
+            fits = [(dy, dx) for dy in range(-2, 3) for dx in range(-2, 3)
+                    if torch.equal(moved[i, c], frames[i, c][:, (torch.arange(8) + dy).clamp(0, 7)]
+                                   [:, :, (torch.arange(8) + dx).clamp(0, 7)])]
+            assert fits, (i, c)
+            found.add(fits[0])
+    assert len(found) > 3  # drawn, not one move for all
+
+
+def test_shift_augmentation_trains_other_weights_and_is_seeded(demos):
+    plain = TrainConfig(steps=20, batch_size=32, lr=3e-3)
+    shifted = plain.model_copy(update={"shift": 3})
+    a, history = train_vision(demos, SPEC, shifted)
+    b, _ = train_vision(demos, SPEC, shifted)
+    c, _ = train_vision(demos, SPEC, plain)
+    assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values()))
+    assert not all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), c.state_dict().values()))
+    assert np.isfinite(history[-1]["loss"])
+    with pytest.raises(ValueError, match="shift augmentation needs the policy's own convolutions"):
+        train_vision(demos, SPEC, shifted, tokenizer=_tokenizer())
 
 def test_dagger_labels_the_learners_own_states_with_the_experts_moves(demos):
     model, _ = train_vision(demos, SPEC, TrainConfig(steps=5, batch_size=16))
