@@ -81,8 +81,8 @@ def train_vision(demos: VisionDemonstrations, spec: ObservationSpec, config: Tra
         shifts = torch.Generator().manual_seed(config.seed + 7919)  # its own stream: minibatches stay as without
 
         def loss(b: torch.Tensor) -> torch.Tensor:
-            seen = random_shift(frames[b.to(device)], config.shift, shifts) if config.shift else frames[b.to(device)]
             b = b.to(device)
+            seen = random_shift(frames[b], config.shift, shifts) if config.shift else frames[b]
             frozen = None if cached is None else cached[b]
             return torch.nn.functional.mse_loss(model.forward_normalised(seen, state[b], frozen), target[b])
 
