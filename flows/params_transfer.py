@@ -7,6 +7,7 @@ from pathlib import Path
 from pydantic import Field, model_validator
 
 from flows.params import DeviceParams, ParamsError, Refused, Side, Steps
+from schemas.errors import StepMissing
 
 MAX_SEEDS = 10_000
 
@@ -113,12 +114,15 @@ class TransferParams(DeviceParams):
                 config, info = model_info(folder)
                 if missing := [look for look in parse_looks(self.look) if look not in config.prompts]:
                     raise CheckpointError(f"{folder}: the model has no look {missing[0]!r}")
+            except StepMissing:
+                raise  # no transfer model trained yet: exit 3 (not built), as every step that needs an earlier one
             except (CheckpointError, FileNotFoundError) as exc:
                 raise Refused(f"{{model}}: {exc}") from None
             if self.reference is not None:
                 if not config.reference:
                     raise Refused(f"{{reference}}: the model {folder} was not trained with reference clips "
-                                  "(train it with --preset small-ref)")
+                                  "(train it with a preset that takes them: small-ref, small-frame, small-affine "
+                                  "or small-palette, the default)")
                 try:
                     probe(self.reference)
                 except DecodeError as exc:

@@ -122,6 +122,13 @@ def test_each_bad_input_is_refused_in_one_line_before_anything_is_written(world,
     after = sorted(p for p in (root / "transfer").rglob("*")) if (root / "transfer").exists() else []
     assert after == before and query("SELECT count(*) FROM runs") == runs
 
+    # No model given and none trained in this data root: a step not built yet (3), as `evaluate physics` says it.
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("WORLDLINE_DATA_ROOT", str(tmp_path / "untrained"))
+        unbuilt = runner.invoke(app, ["transfer", str(episode), "--look", "dim"], terminal_width=400)
+    assert unbuilt.exit_code == 3 and lines(unbuilt) == [
+        "no transfer model in lineage: run `worldline train-transfer` first, or give --model"], unbuilt.output
+
     from flows.transfer import transfer  # a deployment run gets the same checks, as ParamsError
 
     with pytest.raises(ParamsError, match="^look: unknown look 'sepia'"):
