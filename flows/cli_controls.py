@@ -6,7 +6,10 @@ import os
 import tempfile
 from pathlib import Path
 
-from flows.cli_shell import app, command, fail, out, writing
+import typer
+
+from flows.cli_shell import app, command, fail, out, say, writing
+from schemas.errors import EXIT_PARTIAL
 from flows.params_data import ControlsParams
 
 
@@ -39,12 +42,16 @@ def controls(params: ControlsParams) -> None:
     if params.out is not None:
         check_out(params.out)
     try:
-        find_sources(params.source, params.out)
+        find_sources(params.source, params.out, problems=[])  # a folder's unreadable videos: named by the flow
     except ControlError as exc:
         fail(str(exc))
     from flows.controls import controls as controls_flow
 
     writing()
     result = controls_flow(**params.model_dump())
-    out.print(f"{result['videos']} videos, {result['new']} given controls: {len(result['written'])} files written",
-              highlight=False)
+    for problem in result["failed"]:
+        say(problem)
+    out.print(f"{result['videos']} videos, {result['new']} given controls: {len(result['written'])} files written"
+              + (f"; {len(result['failed'])} not readable, left out" if result["failed"] else ""), highlight=False)
+    if result["failed"]:
+        raise typer.Exit(EXIT_PARTIAL)

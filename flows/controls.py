@@ -15,6 +15,7 @@ from schemas.hashing import sha256_file, stable_id
 from schemas.settings import Settings
 from tasks.controls import files, sources
 from tasks.controls.video import CONTROLS_VERSION, VIDEO_CONTROLS, write_video_controls
+from tasks.video import DecodeError
 
 make_controls = task(write_video_controls, name="video-controls", retries=1)
 
@@ -25,9 +26,12 @@ def controls(source: str, out: str | None = None) -> dict:
     a video whose controls are there from an earlier run is skipped."""
     ControlsParams.of(locals())  # every parameter check, for a deployment as for the CLI
     settings = Settings()
-    found = sources.find_sources(Path(source), Path(out) if out else None)
+    problems: list[str] = []  # a folder's videos that are not readable: named, and the rest go on
+    found = sources.find_sources(Path(source), Path(out) if out else None, problems)
     written, new = [], 0
     with recorded_run("controls", settings, params={"source": source, "out": out}) as run:
+        for problem in problems:
+            run.fail_input(problem)
         for item in found:
             sha = sha256_file(str(item.video))
             outputs = [paths.control_file(item.folder, item.name, c) for c in VIDEO_CONTROLS]
@@ -35,13 +39,19 @@ def controls(source: str, out: str | None = None) -> dict:
             stage = run.stage("controls", key, outputs=outputs, manifest_hash=item.manifest_hash)
             if stage.done:
                 continue
-            made = make_controls(item.video, item.folder, item.name)
+            try:
+                made = make_controls(item.video, item.folder, item.name)
+            except (DecodeError, ValueError) as exc:  # probed, but it breaks off while decoding
+                run.fail_input(f"{item.video}: {exc}")
+                continue
             stage.finish(1, len(made), files.source_lineage(item, sha, made, stage.id, settings.data_root),
                          attrs={"video": paths.escaped(str(item.video))})
             written.extend(made.values())
             new += 1
-        summary = f"{len(found)} videos: {new} given edge and blur controls, {len(found) - new} had them already"
+        summary = (f"{len(found)} videos: {new} given edge and blur controls, "
+                   f"{len(found) - new - len(run.failures) + len(problems)} had them already"
+                   + (f"; {len(run.failures)} not readable, left out" if run.failures else ""))
         publish("controls", summary, "\n".join(f"- `{paths.escaped(str(p))}`" for p in written),
                 "edge and blur controls written")
         print(summary)
-        return {"videos": len(found), "new": new, "written": [str(p) for p in written]}
+        return {"videos": len(found), "new": new, "written": [str(p) for p in written], "failed": list(run.failures)}

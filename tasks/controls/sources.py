@@ -33,9 +33,12 @@ def _episode(folder: Path, out: Path | None) -> list[Source]:
             for c in sorted(meta["cameras"])]
 
 
-def find_sources(path: Path | str, out: Path | str | None = None) -> list[Source]:
+def find_sources(path: Path | str, out: Path | str | None = None,
+                 problems: list[str] | None = None) -> list[Source]:
     """The videos under ``path``, each probed; ControlError in one line for a path that is not
-    a video, an episode folder or a folder holding videos."""
+    a video, an episode folder or a folder holding videos. Given ``problems``, a folder's video
+    that does not probe is left out and named there (one line each) instead: a batch goes on
+    without it. A video named by itself is always refused."""
     path, out = Path(path), (Path(out) if out is not None else None)
     if not path.exists():
         raise ControlError(f"{path}: no such file or folder")
@@ -49,9 +52,16 @@ def find_sources(path: Path | str, out: Path | str | None = None) -> list[Source
         found = [Source(v, out if out is not None else path, v.stem) for v in videos]
     else:
         found = [Source(path, out if out is not None else path.parent, path.stem)]
+    readable = []
     for source in found:
         try:
             probe(source.video)
         except DecodeError as exc:
-            raise ControlError(str(exc)) from None
-    return found
+            if problems is None or not path.is_dir():
+                raise ControlError(str(exc)) from None
+            problems.append(str(exc))
+            continue
+        readable.append(source)
+    if not readable:
+        raise ControlError(f"{path}: no readable video there ({problems[0] if problems else 'none found'})")
+    return readable

@@ -72,6 +72,23 @@ def test_controls_of_a_clip_under_out_and_refusals(prefect_harness, data_root, t
         refused = runner.invoke(app, args)
         assert refused.exit_code == 2 and len(lines(refused)) == 1 and said in lines(refused)[0], refused.output
 
+    # A folder goes on without its unreadable video: that one named, the rest given controls, exit 1.
+    batch = tmp_path / "batch"
+    batch.mkdir()
+    write_video(batch / "good.mp4", scene_frames(3))
+    (batch / "broken.mp4").write_bytes(b"not a video either\n")
+    partial = runner.invoke(app, ["controls", str(batch)])
+    assert partial.exit_code == 1, partial.output
+    assert any("broken.mp4" in line and "not a readable video" in line for line in lines(partial)), partial.output
+    assert sorted(p.name for p in batch.iterdir()) == ["broken.mp4", "good.blur.mp4", "good.edges.mp4", "good.mp4"]
+    assert "1 not readable, left out" in partial.output
+    assert query("SELECT status FROM runs ORDER BY started_at DESC LIMIT 1") == [("partial",)]
+    (batch / "good.mp4").unlink()
+    (batch / "good.blur.mp4").unlink()
+    (batch / "good.edges.mp4").unlink()
+    nothing = runner.invoke(app, ["controls", str(batch)])  # nothing readable left: refused whole
+    assert nothing.exit_code == 2 and "no readable video there" in nothing.output, nothing.output
+
 
 def test_the_flows_take_what_their_parameter_models_hold():
     """As tests/flows/test_param_checks.py holds every other flow: the CLI and a deployment
