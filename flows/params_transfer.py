@@ -19,6 +19,8 @@ def seed_list(text: str) -> tuple[int, ...]:
         seeds = range(int(first), int(last) + 1) if dash else range(int(first))
     except ValueError:
         raise ValueError(f"{text!r}: N (seeds 0..N-1) or a range A-B") from None
+    if dash and seeds.stop <= seeds.start:
+        raise ValueError(f"{text!r}: a range A-B runs upwards (A at most B)")
     if not 1 <= len(seeds) <= MAX_SEEDS or seeds.start < 0:
         raise ValueError(f"{text!r}: from 1 to {MAX_SEEDS} seeds, none negative")
     return tuple(seeds)

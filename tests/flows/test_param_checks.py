@@ -77,6 +77,8 @@ CHECKS = [
     (train_transfer, {"manifest": PUSH, "preset_name": "huge"}, ["train-transfer", PUSH, "--preset", "huge"],
      "unknown transfer preset 'huge'"),
     (train_transfer, {"manifest": PUSH, "seeds": "5-2"}, ["train-transfer", PUSH, "--seeds", "5-2"],
+     "'5-2': a range A-B runs upwards (A at most B)"),
+    (train_transfer, {"manifest": PUSH, "seeds": "0-10000"}, ["train-transfer", PUSH, "--seeds", "0-10000"],
      "from 1 to 10000 seeds"),
     (transfer, {"source": "x", "model": "m", "look": "sepia"}, ["transfer", "x", "--model", "m", "--look", "sepia"],
      "unknown look 'sepia'"),
