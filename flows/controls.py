@@ -28,7 +28,7 @@ def controls(source: str, out: str | None = None) -> dict:
     settings = Settings()
     problems: list[str] = []  # a folder's videos that are not readable: named, and the rest go on
     found = sources.find_sources(Path(source), Path(out) if out else None, problems)
-    written, new = [], 0
+    written, new, already = [], 0, 0
     with recorded_run("controls", settings, params={"source": source, "out": out}) as run:
         for problem in problems:
             run.fail_input(problem)
@@ -38,6 +38,7 @@ def controls(source: str, out: str | None = None) -> dict:
             key = stable_id("controls", sha, str(CONTROLS_VERSION), *map(str, outputs))
             stage = run.stage("controls", key, outputs=outputs, manifest_hash=item.manifest_hash)
             if stage.done:
+                already += 1
                 continue
             try:
                 made = make_controls(item.video, item.folder, item.name)
@@ -49,7 +50,7 @@ def controls(source: str, out: str | None = None) -> dict:
             written.extend(made.values())
             new += 1
         summary = (f"{len(found)} videos: {new} given edge and blur controls, "
-                   f"{len(found) - new - len(run.failures) + len(problems)} had them already"
+                   f"{already} had them already"
                    + (f"; {len(run.failures)} not readable, left out" if run.failures else ""))
         publish("controls", summary, "\n".join(f"- `{paths.escaped(str(p))}`" for p in written),
                 "edge and blur controls written")
