@@ -1,5 +1,6 @@
 """Video I/O for every stage: reading (``read.py``: open, probe, packet index, full decode in
-display orientation, the stored frames of the project's own videos) and writing (``write.py``: the x264 settings and ``write_mp4``).
+display orientation, the stored frames of the project's own videos) and writing (``write.py``: the x264 settings and ``write_mp4``; ``x264.py`` checks x264 options
+with libx264 itself).
 
 Curate, guard, sim, the corpus generator and the panels read and write video through here,
 so no stage imports another for it. Imports PyAV, numpy and pydantic, and of ours only

@@ -13,7 +13,9 @@ from typing import Literal
 
 import av
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+from tasks.video import x264
 
 
 class EncodeConfig(BaseModel):
@@ -31,6 +33,11 @@ class EncodeConfig(BaseModel):
     # frames gave 8 different clips in 8 runs (64x48) while x264 limited to AVX2 gave one.
     # The limit costs about a quarter of x264's speed on such CPUs (49 vs 67 fps at 720p).
     reproducible: bool = Field(True, description="keep x264 off AVX-512 so clips are byte-identical")
+
+    @field_validator("x264_params")
+    @classmethod
+    def _x264_reads_it(cls, text: str) -> str:
+        return x264.check(text)  # libx264 itself only warns and drops what it cannot read
 
 
 # x264's names for the instruction sets below AVX-512, and the /proc/cpuinfo flag of each.

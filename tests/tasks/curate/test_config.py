@@ -67,8 +67,12 @@ def test_a_missing_config_file_is_named(tmp_path):
     ("shards: {compression: snappy}\n", "shards.compression: Input should be 'gzip', 'brotli', 'lz4' or 'zstd'$"),
     ("shards: {compression: none}\n", "shards.compression: Input should be 'gzip', 'brotli', 'lz4' or 'zstd'$"),
     ("shards: {compression: gzip, compression_level: 12}\n", r"shards\.compression_level: 12 is outside gzip's levels, 1 to 9$"),
+    # libx264 only warned and encoded without these: a typo went unnoticed.
+    ("encode: {x264_params: 'keyitn=60'}\n", "encode.x264_params: Value error, x264 has no option 'keyitn'$"),
+    ("encode: {x264_params: 'keyint=often'}\n", "encode.x264_params: Value error, x264 cannot read keyint='often'$"),
+    ("encode: {x264_params: 'keyint=60:bframes'}\n", "encode.x264_params: Value error, 'bframes' is not key=value"),
 ])
-def test_shard_settings_the_writer_cannot_use_are_refused_in_one_line(tmp_path, text, problem):
+def test_shard_and_x264_settings_the_writers_cannot_use_are_refused_in_one_line(tmp_path, text, problem):
     path = tmp_path / "curate.yaml"
     path.write_text(text)
     with pytest.raises(ConfigError) as info:
