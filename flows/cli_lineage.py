@@ -94,16 +94,18 @@ def audit(
 
 def _full_id(warehouse, table: str, column: str, given: str, what: str) -> str:
     """The one full id in ``table`` that starts with ``given`` (12+ hex digits), or ``given``
-    itself when it is a full id, is not hex, or nothing starts with it (the audit then finds nothing)."""
+    itself when it is a full id or is not hex; one line, exit 2, when lineage has no such id
+    (an audit of a mistyped hash printed 0 rows and exit 0)."""
     from tasks.lookup import is_hex_id
-    from warehouse.queries import ids_starting
+    from warehouse.queries import ids_starting, knows
 
-    if not is_hex_id(given) or len(given) >= 64:
-        return given
-    found = ids_starting(warehouse, table, column, given)
+    found = ids_starting(warehouse, table, column, given) if is_hex_id(given) and len(given) < 64 else []
     if len(found) > 1:
         fail(f"--{what} {given}: more than one {what} starts with it ({found[0]}, {found[1]}, ...)")
-    return found[0] if found else given
+    full = found[0] if found else given
+    if not knows(warehouse, what, full):
+        fail(f"--{what} {given}: no such {what} in lineage")
+    return full
 
 
 @app.command()
@@ -145,7 +147,6 @@ def verify(
     differ. Reads the warehouse only (tasks/integrity.py `audit`: manifests are not files)."""
     from tasks import integrity
     from warehouse import integrity as claims
-    from warehouse.queries import has_manifest
     from warehouse.store import Warehouse, WarehouseError
 
     check_format(fmt)
@@ -154,8 +155,6 @@ def verify(
         with Warehouse(settings.warehouse_path, read_only=True) as wh:
             if manifest is not None:
                 manifest = _full_id(wh, "manifests", "manifest_hash", manifest, "manifest")
-                if not has_manifest(wh, manifest):
-                    fail(f"--manifest {manifest}: no such manifest in lineage")
             rows = [integrity.Recorded(*r) for r in claims.files(wh, manifest)]
     except WarehouseError as exc:
         refuse(exc)

@@ -54,8 +54,14 @@ def manifest_body(warehouse: Warehouse, manifest_hash: str) -> str | None:
     return rows[0][0] if rows else None
 
 
-def has_manifest(warehouse: Warehouse, manifest_hash: str) -> bool:
-    return bool(warehouse.query("SELECT 1 FROM manifests WHERE manifest_hash = $m", {"m": manifest_hash})[1])
+def knows(warehouse: Warehouse, key: str, value: str) -> bool:
+    """Whether lineage holds ``value`` as a manifest (``key`` 'manifest': registered, or named by
+    a run or an artifact) or as an artifact ('artifact': recorded, or the child of an edge)."""
+    sql = {"manifest": "SELECT 1 FROM manifests WHERE manifest_hash = $v UNION ALL SELECT 1 FROM runs "
+                       "WHERE manifest_hash = $v UNION ALL SELECT 1 FROM artifacts WHERE manifest_hash = $v LIMIT 1",
+           "artifact": "SELECT 1 FROM artifacts WHERE artifact_id = $v UNION ALL "
+                       "SELECT 1 FROM edges WHERE child_id = $v LIMIT 1"}[key]
+    return bool(warehouse.query(sql, {"v": value})[1])
 
 
 def episode_ids(warehouse: Warehouse, manifest_hashes: Sequence[str]) -> list[str]:

@@ -98,6 +98,10 @@ def test_audit_takes_an_id_prefix_and_refuses_an_unknown_format(prefect_harness,
     assert full.exit_code == short.exit_code == 0 and digest in full.output and short.output == full.output
     bad = runner.invoke(app, ["audit", "manifest_artifacts", "--manifest", digest, "--format", "xml"])
     assert bad.exit_code == 2 and "one of table, csv, json" in bad.output
+    for option, given in (("--manifest", "deadbeef" * 2), ("--manifest", "f" * 64), ("--artifact", "nope")):
+        audit = "runs" if option == "--manifest" else "ancestry"
+        unknown = runner.invoke(app, ["audit", audit, option, given])  # printed 0 rows, exit 0
+        assert unknown.exit_code == 2 and unknown.output.strip() == f"{option} {given}: no such {option[2:]} in lineage"
 
 
 def test_prefect_logs_an_input_error_in_one_line_from_the_cli():

@@ -156,8 +156,8 @@ def test_sql_injection_through_the_audit_command_is_inert(name, option, value, d
     honest = runner.invoke(app, ["audit", name, option, "clip1" if option == "--artifact" else m, "--format", "json"])
     assert honest.exit_code == 0, honest.output
     result = runner.invoke(app, ["audit", name, option, value.format(m=m), "--format", "json"])
-    assert result.exit_code == 0, result.output
-    assert result.output.strip() == "[]"  # the whole string was one bound value: it matches nothing
+    # the whole string was one bound value: it names no id, so the audit is refused, in one line
+    assert result.exit_code == 2 and result.output.strip() == f"{option} {value.format(m=m)}: no such {option[2:]} in lineage"
     with Warehouse(data_root / "lineage.duckdb", read_only=True) as wh:
         assert wh.counts() == before
 
