@@ -28,15 +28,17 @@ app.add_typer(evaluate_app, name="evaluate")
 class _InputErrorsInOneLine(logging.Filter):
     """Prefect logs a failed flow or task run's exception with its traceback; from the CLI an
     input error (FileNotFoundError, ValueError: a missing file, a refused manifest or contract),
-    a WorldlineError or an interrupt is then stated in one line, as the CLI states it again on
-    exit. Other errors keep their traceback, and so does every run a worker executes."""
+    a WorldlineError, an interrupt, a full disk or a place that cannot be written is then stated
+    in one line, as the CLI states it again on exit. Other errors keep their traceback, and so does every run a worker executes."""
 
     def filter(self, record: logging.LogRecord) -> bool:
         from flows.ephemeral import signal_name
 
+        from tasks.faults import DISK_FULL, UNWRITABLE
+
         exc = record.exc_info[1] if record.exc_info else None
-        if exc is not None and (isinstance(exc, (FileNotFoundError, ValueError, WorldlineError))
-                                or signal_name(exc)):
+        if exc is not None and (isinstance(exc, (FileNotFoundError, ValueError, WorldlineError)) or signal_name(exc)
+                                or isinstance(exc, OSError) and exc.errno in DISK_FULL | UNWRITABLE):
             record.exc_info = record.exc_text = None
         return True
 

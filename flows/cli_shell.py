@@ -4,7 +4,6 @@ writer lock it holds, how it prints, and commands declared from a flow's paramet
 
 from __future__ import annotations
 
-import errno
 import inspect
 import os
 import types
@@ -39,12 +38,26 @@ class Commands(TyperGroup):
             if code is None and isinstance(exc, WorldlineError):
                 say(str(exc))
                 code = exc.exit_code
-            elif code is None and isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):
-                say(f"disk full: {exc.filename or exc.strerror}")
+            elif code is None and (fault := _machine(exc)) is not None:
+                say(fault)
                 code = EXIT_ENVIRONMENT
             if code is None:
                 raise
             raise typer.Exit(code) from None
+
+
+def _machine(exc: BaseException) -> str | None:
+    """The line for an OSError that is the machine's: a full disk, or a place under the data root
+    that cannot be written (a read-only folder, a file where a folder belongs)."""
+    from tasks import faults
+
+    if isinstance(exc, OSError) and exc.errno in faults.DISK_FULL:
+        return f"disk full: {exc.filename or exc.strerror}"
+    try:
+        fault = faults.unwritable(exc, Settings().data_root, "writing")
+    except SettingsError:
+        return None
+    return None if fault is None else str(fault)
 
 
 held = ExitStack()  # what a command holds until it ends (writing), released before its exit code is set
@@ -86,13 +99,16 @@ def writing() -> None:
     from flows import ephemeral
     from flows.console import route_prefect_logs, verbose
     from flows.server_found import use_running_server
-    from warehouse import lock
+    from warehouse import lock, preflight, store
 
     settings = Settings()
     held.enter_context(ephemeral.interrupts_handled())
     held.enter_context(lock.writer(settings.data_root, settings.lock_timeout, on_wait=lambda holder: say(
         f"{settings.data_root}: another worldline process ({holder}) is writing; waiting up to "
         f"{settings.lock_timeout:g} s")))
+    preflight.check_folders(settings.data_root)  # one line now, not a traceback when the work reaches it
+    preflight.check_warehouse(settings.warehouse_path)
+    store.on_wait = lambda holder: say(f"{holder}; waiting up to {settings.lock_timeout:g} s")
     if (api_url := use_running_server()) and verbose():
         say(f"Prefect API: {api_url}")
     ephemeral.guard_prefect()

@@ -19,6 +19,7 @@ import signal
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import NamedTuple
 
 from schemas.errors import EnvironmentFault
@@ -79,13 +80,54 @@ def disk_full(exc: BaseException, path: str | os.PathLike, stage: str) -> Enviro
     return None
 
 
+# The data root's fault, never the input's: a folder that cannot be written, a read-only file
+# system, or a file where a folder belongs (mkdir: EEXIST; below it: ENOTDIR) or a folder where a file does.
+UNWRITABLE = frozenset({errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR, errno.EEXIST})
+
+
+def _inside(name: str | bytes, root: str | os.PathLike) -> bool:
+    try:
+        return Path(os.fsdecode(name)).resolve().is_relative_to(Path(root).resolve())
+    except (OSError, RuntimeError, ValueError):
+        return False
+
+
+def unwritable(exc: BaseException, root: str | os.PathLike, stage: str) -> EnvironmentFault | None:
+    """The one-line `EnvironmentFault` for ``exc`` when it is a place under the data root
+    ``root`` that cannot be written (so not the input's fault), else None."""
+    if not isinstance(exc, OSError) or exc.errno not in UNWRITABLE:
+        return None
+    name = next((n for n in (exc.filename, exc.filename2) if n is not None and _inside(n, root)), None)
+    if name is None:
+        return None
+    fault = EnvironmentFault(f"{escaped(os.fsdecode(name))}: {exc.strerror or exc} while {stage}; "
+                             f"the data root {escaped(os.fspath(root))} must be a folder this user can write")
+    fault.__cause__ = exc
+    return fault
+
+
+def machine(exc: BaseException, path: str | os.PathLike, stage: str,
+            root: str | os.PathLike) -> EnvironmentFault | None:
+    """``disk_full`` or ``unwritable``: the fault when ``exc`` is the machine's, not an input's."""
+    return disk_full(exc, path, stage) or unwritable(exc, root, stage)
+
+
 @contextmanager
-def fatal_when_disk_full(path: str | os.PathLike, stage: str) -> Iterator[None]:
+def fatal_when_disk_full(path: str | os.PathLike, stage: str, root: str | os.PathLike | None = None) -> Iterator[None]:
     """Re-raise a full disk inside the block as ``EnvironmentFault("PATH: disk full while STAGE")``:
-    the run stops, and no input is blamed (quarantined) for what the machine ran out of."""
+    the run stops, and no input is blamed (quarantined) for what the machine ran out of. Another
+    OSError that names no file is given ``path`` as its file; with the data root ``root``, a place
+    under it that cannot be written is an `EnvironmentFault` too (``unwritable``)."""
     try:
         yield
     except OSError as exc:
         if (fault := disk_full(exc, path, stage)) is not None:
             raise fault from exc
-        raise
+        named = exc  # PyAV's errors name no file: name the one written
+        if exc.filename is None and exc.errno is not None:
+            named = OSError(exc.errno, exc.strerror or str(exc), os.fspath(path))
+        if root is not None and (fault := unwritable(named, root, stage)) is not None:
+            raise fault from exc
+        if named is exc:
+            raise
+        raise named from exc

@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from schemas.errors import Busy
+from schemas.errors import Busy, EnvironmentFault
 
 LOCK_FILE = "worldline.lock"
 
@@ -69,13 +69,18 @@ def writer(data_root: Path | str, timeout: float, on_wait: Callable[[str], None]
     """Hold the data root's writer lock, waiting up to ``timeout`` seconds for another process
     to release it (``on_wait(holder)`` is called once if it has to wait), else raise Busy."""
     root = Path(data_root)
-    root.mkdir(parents=True, exist_ok=True)
-    path = (root / LOCK_FILE).resolve()
-    with _guard:  # one thread acquires at a time: a second open of the file would conflict with the first
-        if path in _held:
-            _held[path][1] += 1
-        else:
-            _held[path] = [_acquire(root, path, timeout, on_wait), 1]
+    try:
+        root.mkdir(parents=True, exist_ok=True)
+        path = (root / LOCK_FILE).resolve()
+        with _guard:  # one thread acquires at a time: a second open of the file would conflict with the first
+            if path in _held:
+                _held[path][1] += 1
+            else:
+                _held[path] = [_acquire(root, path, timeout, on_wait), 1]
+    except OSError as exc:  # a read-only root, a file where the root belongs, a full disk: the machine's
+        where = exc.filename or root
+        raise EnvironmentFault(f"{where}: the data root cannot be written ({exc.strerror or exc}); "
+                               "WORLDLINE_DATA_ROOT (or --data-root) must name a folder this user can write") from None
     try:
         yield path
     finally:

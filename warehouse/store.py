@@ -57,6 +57,9 @@ _DAMAGE = ("Corrupt database file", "Could not read enough bytes", "not a valid 
            "Corrupt WAL file", "Failure while replaying WAL")
 _LOCKED = "Could not set lock on file"
 _OPEN: dict[Path, int] = {}  # connections this process has open, per warehouse file
+# Told once when opening the warehouse has to wait for another process (the CLI prints it, as it
+# prints the data root lock's wait): "PATH: another process (pid N) has the warehouse open".
+on_wait: Callable[[str], None] | None = None
 
 
 class WarehouseError(RuntimeError):
@@ -65,6 +68,11 @@ class WarehouseError(RuntimeError):
 
 class WarehouseMissing(WarehouseError, NotBuilt):
     """No warehouse yet: no flow has run on this data root (exit 3)."""
+
+
+class WarehouseUnusable(WarehouseError, EnvironmentFault):
+    """The warehouse file cannot be used: it cannot be opened (a folder, no permission), is not
+    a Worldline warehouse, or has a schema this version cannot read (exit 5, the machine's)."""
 
 
 def damaged(path: Path, what: str, advice: str = "move it aside (and its .wal) and re-run the flows into a new "
@@ -150,7 +158,7 @@ class Warehouse:
         """Connect, waiting (with backoff) while another process holds the file: DuckDB takes an
         OS lock per process, and a worldline writer holds the data root's lock too, so this
         waits for a process outside worldline's lock (or a reader of the main file) to let go."""
-        deadline, pause = time.monotonic() + timeout, 0.05
+        deadline, pause, told = time.monotonic() + timeout, 0.05, False
         while True:
             try:
                 return duckdb.connect(str(path), read_only=self.read_only)
@@ -158,11 +166,14 @@ class Warehouse:
                 if _is_damage(exc):
                     raise damaged(path, _first_line(exc)) from None
                 if _LOCKED not in str(exc):
-                    raise WarehouseError(f"{path}: cannot open the warehouse: {_first_line(exc)}") from exc
+                    raise WarehouseUnusable(f"{path}: cannot open the warehouse: {_first_line(exc)}") from exc
+                pid = re.search(r"\(PID (\d+)\)", str(exc))
+                holder = f"{path}: another process{f' (pid {pid[1]})' if pid else ''} has the warehouse open"
                 if time.monotonic() >= deadline:
-                    pid = re.search(r"\(PID (\d+)\)", str(exc))
-                    raise Busy(f"{path}: another process{f' (pid {pid[1]})' if pid else ''} has the "
-                               f"warehouse open; waited {timeout:g} s (WORLDLINE_LOCK_TIMEOUT)") from None
+                    raise Busy(f"{holder}; waited {timeout:g} s (WORLDLINE_LOCK_TIMEOUT)") from None
+                if on_wait is not None and not told:
+                    on_wait(holder)
+                    told = True
             time.sleep(min(pause, max(0.0, deadline - time.monotonic())))
             pause = min(pause * 2, 1.0)
 
@@ -220,22 +231,22 @@ class Warehouse:
         tables = self._tables()
         if "worldline_meta" not in tables:
             if tables:
-                raise WarehouseError(f"{self.path}: not a Worldline warehouse (tables {sorted(tables)[:5]} but no worldline_meta)")
+                raise WarehouseUnusable(f"{self.path}: not a Worldline warehouse (tables {sorted(tables)[:5]} but no worldline_meta)")
             if self.read_only:
-                raise WarehouseError(f"{self.path}: empty database, not a Worldline warehouse")
+                raise WarehouseUnusable(f"{self.path}: empty database, not a Worldline warehouse")
             self.con.execute(ddl())
             self.con.execute("INSERT INTO worldline_meta VALUES ('schema_version', ?)", [str(SCHEMA_VERSION)])
             return
         row = self.con.execute("SELECT value FROM worldline_meta WHERE key = 'schema_version'").fetchall()
         version = int(row[0][0]) if row else 0
         if version > SCHEMA_VERSION:
-            raise WarehouseError(
+            raise WarehouseUnusable(
                 f"{self.path}: schema version {version} was written by a newer Worldline "
                 f"(this one knows {SCHEMA_VERSION}); refusing to mix them")
         if version < SCHEMA_VERSION:
             missing = [v for v in range(version + 1, SCHEMA_VERSION + 1) if v not in MIGRATIONS]
             if missing or self.read_only:
-                raise WarehouseError(
+                raise WarehouseUnusable(
                     f"{self.path}: schema version {version} is older than {SCHEMA_VERSION} and "
                     f"{'cannot be migrated read-only' if self.read_only else 'has no migration'}; "
                     "move it aside or re-run the flows into a new file")

@@ -190,7 +190,7 @@ def _write_named(table: pa.Table, root: Path, bucket: dict[str, str], index: int
     temporary is gone on every way out; a full disk stops the run (``EnvironmentFault``)."""
     folder = Path(root) / paths.SHARD_DIR.format(**bucket)
     tmp = folder / f".part-{index:05d}.{os.getpid()}.tmp"
-    with faults.fatal_when_disk_full(tmp, "writing shards"):
+    with faults.fatal_when_disk_full(tmp, "writing shards", root):
         folder.mkdir(parents=True, exist_ok=True)
         try:
             # MP4 bytes do not compress: spend no time trying, and keep them out of dictionaries.

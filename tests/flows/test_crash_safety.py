@@ -124,6 +124,29 @@ def test_a_full_disk_stops_the_run_naming_the_file_and_blames_no_input(point, st
     _after_a_full_disk(data_root, stage)
 
 
+@pytest.mark.parametrize("folder, stage", [("clips", "encoding clips"), ("shards/unscoped", "writing shards")])
+def test_a_file_where_a_data_root_folder_belongs_stops_the_run_and_blames_no_input(folder, stage, prefect_harness,
+                                                                                   inbox, data_root):
+    """A folder of the data root that cannot be written once quarantined every input ("2 of 2
+    inputs failed") or ended in a traceback after all the work; it is the machine's fault, one
+    line. Files where the layout's next folders belong fail their mkdir as they would for any user."""
+    from flows.curate import curate
+
+    place = data_root / folder
+    place.mkdir(parents=True)
+    names = [f"{i:02x}" for i in range(256)] if folder == "clips" else ["lt240p", *(f"{r}p" for r in (240, 360, 480, 720))]
+    for name in names:
+        (place / name).write_text("mine\n")
+    with pytest.raises(EnvironmentFault, match=rf"^{re.escape(str(place))}/\S+: (File exists|Not a directory) while {stage}; the data "
+                                               rf"root {re.escape(str(data_root))} must be a folder this user can write$"):
+        curate([str(inbox)])
+    assert _temporaries(data_root) == [] and all((place / name).read_text() == "mine\n" for name in names)
+    with Warehouse(data_root / "lineage.duckdb", read_only=True) as wh:
+        rejected = wh.query("SELECT a.uri FROM rejections r JOIN artifacts a USING (artifact_id) WHERE a.kind = 'raw_video'")[1]
+        (status, message), = wh.query("SELECT status, message FROM runs")[1]
+    assert [Path(uri).name for uri, in rejected] == ["broken.mp4"] and status == "failed", (rejected, message)
+
+
 @pytest.mark.parametrize("folder, stage", [("clips", "encoding clips"), ("shards", "writing shards")])
 def test_a_real_full_disk_under_a_small_tmpfs(folder, stage, prefect_harness, inbox, data_root):
     """The same on a real 4 kB file system (clips or shards on it; lineage beside it). Needs root

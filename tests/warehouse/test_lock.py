@@ -77,3 +77,18 @@ def test_a_killed_holder_leaves_the_lock_free(tmp_path):
     holder.wait()
     with lock.writer(tmp_path, 0):
         assert (tmp_path / lock.LOCK_FILE).read_text().startswith(f"pid {os.getpid()}, command ")
+
+
+def test_a_data_root_that_cannot_be_written_is_the_machines_fault_in_one_line(tmp_path):
+    """A read-only root gave an 82-line traceback (PermissionError opening worldline.lock)."""
+    from schemas.errors import EXIT_ENVIRONMENT, EnvironmentFault
+
+    taken = tmp_path / "a file"
+    taken.write_text("mine\n")
+    for root in (taken, taken / "below"):  # mkdir: File exists, Not a directory
+        with pytest.raises(EnvironmentFault, match=r"the data root cannot be written \((File exists|Not a directory)\); "
+                                                   "WORLDLINE_DATA_ROOT") as caught:
+            with lock.writer(root, timeout=1):
+                pass
+        assert caught.value.exit_code == EXIT_ENVIRONMENT and "\n" not in str(caught.value)
+    assert taken.read_text() == "mine\n"

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import errno
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -12,7 +13,7 @@ import pytest
 
 from schemas.errors import EnvironmentFault
 from tasks import faults
-from tasks.curate.inputs import damage, decode_reason, discover, iso_truncation
+from tasks.curate.inputs import changed, damage, decode_reason, discover, find, iso_truncation, same_bytes
 
 from tests.support import REPO, scene_frames, write_video
 
@@ -98,3 +99,65 @@ def test_a_full_disk_is_the_machines_fault_and_other_errors_pass(tmp_path):
         with faults.fatal_when_disk_full(tmp_path, "testing"):
             raise PermissionError(errno.EACCES, "Permission denied")
     assert faults.disk_full(ValueError("no"), tmp_path, "testing") is None
+
+
+def test_a_place_under_the_data_root_that_cannot_be_written_is_the_machines_fault(tmp_path):
+    root, outside = tmp_path / "root", tmp_path / "inputs" / "a.mp4"
+    for error in (PermissionError(errno.EACCES, "Permission denied", str(root / "clips" / "1f")),
+                  OSError(errno.EROFS, "Read-only file system", str(root / "x.tmp")),
+                  FileExistsError(errno.EEXIST, "File exists", str(root / "shards" / "abc"))):
+        fault = faults.unwritable(error, root, "testing")
+        assert fault is not None and fault.exit_code == 5 and str(fault).startswith(f"{error.filename}: ")
+        assert str(fault).endswith(f"while testing; the data root {root} must be a folder this user can write")
+    assert faults.unwritable(PermissionError(errno.EACCES, "Permission denied", str(outside)), root, "x") is None
+    assert faults.unwritable(PermissionError(errno.EACCES, "Permission denied"), root, "x") is None  # names nothing
+    assert faults.unwritable(OSError(errno.EIO, "I/O error", str(root / "a")), root, "x") is None
+    # an error without a file (PyAV's) is given the file written, and so found under the root
+    with pytest.raises(EnvironmentFault, match=rf"^{re.escape(str(root))}/c\.tmp: Permission denied while writing"):
+        with faults.fatal_when_disk_full(root / "c.tmp", "writing", root):
+            raise PermissionError(errno.EACCES, "Permission denied")
+    with pytest.raises(PermissionError) as caught:  # without the root: named, passed on
+        with faults.fatal_when_disk_full(root / "c.tmp", "writing"):
+            raise PermissionError(errno.EACCES, "Permission denied")
+    assert caught.value.filename == str(root / "c.tmp")
+
+
+def test_a_walked_folder_leaves_out_the_data_roots_outputs_unless_it_is_inside_them(tmp_path):
+    from schemas.paths import output_folders
+
+    root = tmp_path / ".worldline"
+    for name in ("raw/a.mp4", ".worldline/clips/1f/c.mp4", ".worldline/episodes/e/side.mp4",
+                 ".worldline/corpus/seed_000001/raw_0000.mp4"):
+        (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / name).write_bytes(b"x")
+    skip = output_folders(root)
+    assert "corpus" not in {p.name for p in skip} and root / "clips" in skip
+    assert find([tmp_path], skip) == [tmp_path / ".worldline/corpus/seed_000001/raw_0000.mp4", tmp_path / "raw/a.mp4"]
+    assert find([root / "episodes"], skip) == [root / "episodes/e/side.mp4"]  # walked from inside: taken
+    assert find([root / "clips/1f/c.mp4"], skip) == [root / "clips/1f/c.mp4"]  # named: taken
+    assert len(find([tmp_path])) == 4
+
+
+def test_the_same_bytes_are_one_input_named_by_a_regular_file_first(tmp_path):
+    (tmp_path / "b.mp4").write_bytes(b"same")
+    (tmp_path / "c.mp4").write_bytes(b"same")
+    (tmp_path / "a.mp4").symlink_to(tmp_path / "b.mp4")
+    (tmp_path / "d.mp4").write_bytes(b"other")
+    found = [i for i in discover([tmp_path]) if i.sha256]
+    assert len(found) == 4
+    once = same_bytes(found)
+    assert [(i.path.name, i.other_names) for i in once] == [
+        ("b.mp4", (str(tmp_path / "a.mp4"), str(tmp_path / "c.mp4"))), ("d.mp4", ())]
+    assert once[0].attrs == {"other_names": [str(tmp_path / "a.mp4"), str(tmp_path / "c.mp4")]} and once[1].attrs == {}
+
+
+def test_a_file_changed_since_it_was_hashed_is_said_to_have_changed(tmp_path):
+    video = tmp_path / "a.mp4"
+    video.write_bytes(b"first")
+    item, = discover([video])
+    assert item.stamp == (5, video.stat().st_mtime_ns) and changed(item) is None
+    video.write_bytes(b"second!")
+    reason, detail = changed(item)
+    assert reason == "changed" and detail.startswith("changed while being curated (5 bytes when it was hashed, 7 now")
+    video.unlink()
+    assert changed(item)[1].startswith("changed while being curated: it cannot be read any more")
