@@ -14,6 +14,8 @@ from flows import cli_checks as need
 from flows.cli_shell import FORMAT, app, check_format, command, fail, out, print_rows, writing
 from flows.params_data import CorpusParams, CurateParams, SimulateParams
 from schemas.errors import EXIT_ENVIRONMENT, EXIT_PARTIAL, WorldlineError
+from schemas.paths import output_folders
+from schemas.settings import Settings
 
 JSON = typer.Option(False, "--json", hidden=True, help="the same as --format json")
 CONFIG = typer.Option(None, help="YAML overrides of CurateConfig")
@@ -102,9 +104,9 @@ def curate(params: CurateParams) -> None:
         need.manifest(params.manifest)
     need.curate_config(params.config)
     from tasks.curate.config import VIDEO_SUFFIXES
-    from tasks.curate.inputs import discover
+    from tasks.curate.inputs import find
 
-    if not discover([Path(p) for p in params.inputs]):
+    if not find([Path(p) for p in params.inputs], output_folders(Settings().data_root)):  # paths only, not hashed
         fail(f"{', '.join(params.inputs)}: no videos there ({' '.join(VIDEO_SUFFIXES)} in folders, or files given "
              "by name)")
     from flows.curate import curate as curate_flow

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from prefect import flow, get_run_logger, task
 
+from flows.curate_inputs import analysed, quarantine, source_changed
 from flows.params_data import CurateParams
 from flows.recording import RunContext, recorded_run
 from flows.report import progress, publish
@@ -22,9 +23,8 @@ from schemas.settings import Settings
 from tasks import faults, manifests, progress as ticks
 from tasks.curate import analyse, dedup, lineage, outputs, report, shards
 from tasks.curate.config import CurateConfig, load_config
-from tasks.curate.decode import DecodeError
 from tasks.curate.encode import encode_clips
-from tasks.curate.inputs import Input, damage, decode_reason, discover
+from tasks.curate.inputs import Input, discover, same_bytes
 from tasks.guard import clip as face_guard
 from tasks.guard.lineage import face_decisions
 
@@ -33,15 +33,6 @@ analyse_video = task(analyse.analyse_video, name="analyse-video", retries=0)
 encode_video = task(encode_clips, name="encode-clips", retries=1)
 write_shards = task(shards.write_shards, name="write-shards", retries=1)
 guard_clips = task(face_guard.guard_clips, name="guard-faces", retries=1)
-
-
-def _quarantine(run: RunContext, item: Input, stage: str, reason: str, detail: str) -> None:
-    source, detail = paths.escaped(item.path), paths.escaped(detail)
-    failed = run.stage(stage, stable_id("quarantine", source, item.sha256 or ""))
-    failed.finish(1, 0, lineage.quarantined(source, item.sha256, stage, reason, detail, run.manifest_hash, failed.id),
-                  attrs=paths.escaped({"source": source, "reason": reason}), status="failed")
-    run.fail_input(f"{source}: {detail}")
-    get_run_logger().warning(f"quarantined {source}: {detail}")  # shown without -v too
 
 
 def analyse_all(run: RunContext, inputs: list[Input], config: CurateConfig,
@@ -64,7 +55,7 @@ def analyse_all(run: RunContext, inputs: list[Input], config: CurateConfig,
                             analyse_video.submit(item.path, item.sha256, config, manifest, run.manifest_hash))
     with progress(len(futures), "analyse videos") as bar:
         for item, cache, stage, future in futures.values():
-            result = _analysed(run, item, future)
+            result = analysed(run, item, future)
             bar.advance()
             if result is None:
                 continue
@@ -72,30 +63,10 @@ def analyse_all(run: RunContext, inputs: list[Input], config: CurateConfig,
             rejected = [c for c in result.clips if not c.kept]
             stage.finish(1, len(result.clips), lineage.raw_video(
                 str(item.path), item.sha256, item.bytes, run.manifest_hash, stage.id,
-                {"info": result.info, "decode": result.decode}).extend(lineage.clips(rejected, stage.id)),
+                {"info": result.info, "decode": result.decode, **item.attrs}).extend(lineage.clips(rejected, stage.id)),
                 attrs=paths.escaped({"source": str(item.path), **result.decode}))
             results.append(result)
     return sorted(results, key=lambda r: r.source)
-
-
-def _analysed(run: RunContext, item: Input, future) -> analyse.VideoAnalysis | None:
-    """The analysis of one input, or None when the input is quarantined instead."""
-    try:
-        result = future.result()
-    except EnvironmentFault:
-        raise  # the machine's fault (a full disk): the run stops, the input is not blamed
-    except DecodeError as exc:
-        _quarantine(run, item, "decode", decode_reason(str(exc)), str(exc))
-        return None
-    except Exception as exc:  # a batch never dies on one video
-        if (fault := faults.disk_full(exc, item.path, "analysing")) is not None:
-            raise fault from exc
-        _quarantine(run, item, "analyse", type(exc).__name__, f"{item.path}: {exc}")
-        return None
-    if (damaged := damage(result.decode)) is not None:
-        _quarantine(run, item, "decode", damaged[0], f"{item.path}: {damaged[1]}")
-        return None
-    return result
 
 
 def deduplicate(run: RunContext, analyses: list[analyse.VideoAnalysis], config: CurateConfig) -> list[ClipRecord]:
@@ -114,8 +85,10 @@ def deduplicate(run: RunContext, analyses: list[analyse.VideoAnalysis], config: 
     return [c for c in judged if c.kept]
 
 
-def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -> list[ClipRecord]:
-    """Kept clips only, one forward pass per source; files already encoded are reused."""
+def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig,
+               inputs: dict[str, Input]) -> list[ClipRecord]:
+    """Kept clips only, one forward pass per source; files already encoded are reused; a source
+    changed on disk since it was hashed is not encoded (or its new clips are removed)."""
     root = run.settings.data_root
     by_source: dict[str, list[ClipRecord]] = defaultdict(list)
     for clip in clips:
@@ -133,6 +106,8 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
                 out.extend(reused)
                 continue
             redo = True  # a clip file changed since: encode the source's spans again (issue 26)
+        if source_changed(run, inputs.get(source)):
+            continue
         spans = [(c.start_frame, c.end_frame) for c in group]
         encoded = encodings[key] = encode_video.submit(source, spans, targets, config.encode)
         guarded = guard_clips.submit(targets, config.guard, config.encode, wait_for=[encoded])
@@ -147,12 +122,14 @@ def encode_all(run: RunContext, clips: list[ClipRecord], config: CurateConfig) -
                 cause = cause if isinstance(cause, BaseException) else exc
                 if isinstance(cause, EnvironmentFault):
                     raise cause from None  # a full disk: the run stops, the source is not to blame
-                if (fault := faults.disk_full(cause, targets[0].parent, "encoding clips")) is not None:
+                if (fault := faults.machine(cause, targets[0].parent, "encoding clips", root)) is not None:
                     raise fault from cause
                 run.fail_input(paths.escaped(f"{group[0].source_uri}: encoding failed: {exc}"))
                 continue
             finally:
                 bar.advance(len(group))
+            if source_changed(run, inputs.get(group[0].source_uri), [] if redo else targets):
+                continue
             encoded = [outputs.with_file(c, t, root, found) for c, t, found in zip(group, targets, faces)]
             if redo and (differs := outputs.differs(run.warehouse, encoded, targets)):
                 run.fail_input(differs)
@@ -177,14 +154,14 @@ def curate(inputs: list[str], manifest: str | None = None, config: str | None = 
                       params=paths.escaped({"inputs": inputs, "manifest": manifest, "config": config})) as run:
         shards.remove_stale_temporaries(settings.data_root)  # left by a killed run; we hold the writer lock
         outputs.rename_legacy_shards(run.warehouse, settings.data_root)
-        found = discover(inputs)
+        found = discover(inputs, skip=paths.output_folders(settings.data_root))  # not its own clips
         for item in (i for i in found if i.problem):
-            _quarantine(run, item, "input", item.reason or "unusable", f"{item.path}: {item.problem}")
-        analyses = analyse_all(run, [i for i in found if not i.problem], cfg, scenario)
+            quarantine(run, item, "input", item.reason or "unusable", f"{item.path}: {item.problem}")
+        analyses = analyse_all(run, same_bytes([i for i in found if not i.problem]), cfg, scenario)
         for line in report.smeared(analyses):  # corrupt frames the decoder did not flag: named, not quarantined
             get_run_logger().warning(line)
         unique = deduplicate(run, analyses, cfg)
-        encoded = encode_all(run, unique, cfg)
+        encoded = encode_all(run, unique, cfg, {str(i.path): i for i in found})
         started = time.perf_counter()
         written = write_shards(encoded, settings.data_root, run.manifest_hash or "unscoped", cfg.shards)
         stage = run.stage("shard", stable_id("shards", *(s.sha256 for s in written)), started=started)

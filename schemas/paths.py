@@ -79,6 +79,26 @@ EPISODE_LATENTS_FILE = "cache/episode_latents/{tokenizer_id:.12}/{video_sha256:.
 DERIVED_MANIFEST_FILE = "manifests/derived/{manifest_hash:.12}.yaml"
 
 
+# Folders of the data root that hold inputs a user curates (footage `worldline corpus` makes).
+INPUT_FOLDERS = ("corpus",)
+
+
+def layout_folders() -> list[str]:
+    """The data root's top-level folders, from the templates above (and Prefect's home, the
+    quarantine and the reports)."""
+    names = {PREFECT_DIR, QUARANTINE_DIR, "reports"}
+    for name, value in globals().items():
+        if name.isupper() and isinstance(value, str) and "/" in value and "{" not in value.split("/")[0]:
+            names.add(value.split("/")[0])
+    return sorted(names)
+
+
+def output_folders(root: Path) -> list[Path]:
+    """The folders where Worldline writes what it makes (clips, episodes, transfers, ...): a
+    folder walked for videos to curate leaves them out, unless it is inside one of them."""
+    return [Path(root) / name for name in layout_folders() if name not in INPUT_FOLDERS]
+
+
 def resolve(root: Path, template: str, **fields) -> Path:
     return Path(root) / template.format(**fields)
 

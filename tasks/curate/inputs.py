@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from schemas.hashing import sha256_file
@@ -25,6 +25,50 @@ class Input:
     bytes: int = 0
     problem: str | None = None  # why it cannot be curated; None when it can
     reason: str | None = None  # the problem as a short code (rejections.reason)
+    stamp: tuple[int, int] | None = None  # (size, mtime in ns) when it was hashed
+    other_names: tuple[str, ...] = ()  # other paths given with the same bytes (``same_bytes``)
+
+    @property
+    def attrs(self) -> dict:
+        """What its raw_video artifact records of it beyond the path and the bytes."""
+        return {"other_names": list(self.other_names)} if self.other_names else {}
+
+
+def _stamp(path: Path) -> tuple[int, int]:
+    status = path.stat()
+    return status.st_size, status.st_mtime_ns
+
+
+def changed(item: Input) -> tuple[str, str] | None:
+    """(reason, detail) when the file at ``item.path`` is no longer the one hashed (its size or
+    modification time moved): what was analysed or encoded from it may not be those bytes."""
+    if item.stamp is None:
+        return None
+    try:
+        now = _stamp(item.path)
+    except OSError as exc:
+        return "changed", f"changed while being curated: it cannot be read any more ({exc.strerror or exc})"
+    if now == item.stamp:
+        return None
+    return "changed", (f"changed while being curated ({item.stamp[0]} bytes when it was hashed, {now[0]} now, "
+                       "modified since); its clips are not kept: curate it again once it is complete")
+
+
+def same_bytes(found: list[Input]) -> list[Input]:
+    """One input per content: the same bytes under several names are curated once, under the
+    name of a regular file before a symlink's (then the first by path), with the others in
+    ``other_names``. Inputs without a hash pass through."""
+    groups: dict[str, list[Input]] = {}
+    out = []
+    for item in found:
+        if item.sha256 is None:
+            out.append(item)
+        else:
+            groups.setdefault(item.sha256, []).append(item)
+    for group in groups.values():
+        group.sort(key=lambda i: (i.path.is_symlink(), str(i.path)))
+        out.append(replace(group[0], other_names=tuple(sorted(str(i.path) for i in group[1:]))))
+    return sorted(out, key=lambda i: str(i.path))
 
 
 def _bad(path: Path, reason: str, problem: str) -> Input:
@@ -50,7 +94,12 @@ def _check(path: Path) -> Input:
             cut = iso_truncation(handle, size)
         if cut:
             return _bad(path, "truncated", cut)
-        return Input(path, sha256=sha256_file(str(path)), bytes=size)
+        before = _stamp(path)
+        digest = sha256_file(str(path))
+        if _stamp(path) != before:
+            return _bad(path, "changing", "changed while it was read (still being written?); "
+                        "curate it once it is complete")
+        return Input(path, sha256=digest, bytes=before[0], stamp=before)
     except RuntimeError as exc:  # pathlib reports symlink loops as RuntimeError on 3.11
         return _bad(path, "symlink_loop", f"symlink loop: {exc}")
     except FileNotFoundError:
@@ -100,21 +149,35 @@ def iso_truncation(handle, size: int) -> str | None:
     return None
 
 
-def discover(paths: list[str | Path]) -> list[Input]:
-    """Files given directly are taken whatever their suffix; folders contribute their videos.
-
-    Sorted by path so batches are processed in the same order every time.
-    """
-    found: dict[str, Input] = {}
+def find(paths: list[str | Path], skip: list[Path] = ()) -> list[Path]:
+    """The paths of a batch: files given directly whatever their suffix; folders contribute
+    their videos, except those inside a folder of ``skip`` that the folder walked is not inside
+    itself (the data root's outputs, ``paths.output_folders``: curating a folder that holds the
+    data root must not take its own clips and episode videos back in). Sorted, each once."""
+    found: set[str] = set()
+    skipped = [Path(folder).resolve() for folder in skip]
     for raw in paths:
         path = Path(raw)
         if path.is_dir() and not path.name.lower().endswith(VIDEO_SUFFIXES):
-            for child in sorted(path.rglob("*")):
-                if child.name.lower().endswith(VIDEO_SUFFIXES):
-                    found.setdefault(str(child), _check(child))
+            walked = path.resolve()
+            left_out = [folder for folder in skipped if not walked.is_relative_to(folder)]
+            for child in path.rglob("*"):
+                if child.name.lower().endswith(VIDEO_SUFFIXES) and not _inside(child, left_out):
+                    found.add(str(child))
         else:
-            found.setdefault(str(path), _check(path))
-    return [found[k] for k in sorted(found)]
+            found.add(str(path))
+    return [Path(p) for p in sorted(found)]
+
+
+def _inside(path: Path, folders: list[Path]) -> bool:
+    parent = path.parent.resolve() if folders else None
+    return any(parent.is_relative_to(folder) for folder in folders)
+
+
+def discover(paths: list[str | Path], skip: list[Path] = ()) -> list[Input]:
+    """``find``'s paths, each checked and hashed (``Input``), sorted by path so batches are
+    processed in the same order every time."""
+    return [_check(path) for path in find(paths, skip)]
 
 
 # DecodeError messages (tasks/video/read.py, tasks/curate/decode.py) -> rejection reason; first match wins.
