@@ -162,9 +162,12 @@ def verify(
     print_rows(["problem", "kind", "artifact_id", "uri", "lineage_sha256", "file_sha256"],
                [(f.problem, f.kind, f.artifact_id, f.uri, f.lineage_sha256, f.file_sha256)
                 for f in findings], fmt, title=f"files that differ from lineage ({len(findings)})")
+    problems = [f for f in findings if f.problem in integrity.PROBLEMS]
     counts = ", ".join(f"{sum(f.problem == p for f in findings)} {p}" for p in integrity.PROBLEMS)
+    notes = len(findings) - len(problems)
     line = (f"{checked} artifacts checked, {hashed} files hashed: "
-            + (f"{len(findings)} differ from lineage ({counts})" if findings else "all match lineage"))
+            + (f"{len(problems)} differ from lineage ({counts})" if problems else "all match lineage")
+            + (f"; {notes} superseded (inputs rewritten in place and curated again)" if notes else ""))
     (out if fmt == "table" else err).print(line, highlight=False, markup=False, soft_wrap=True)  # csv, json parseable
-    if findings:
+    if problems:
         raise typer.Exit(EXIT_ENVIRONMENT)

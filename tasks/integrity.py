@@ -26,6 +26,10 @@ from schemas.errors import InvalidInput, TamperedArtifact
 from schemas.hashing import sha256_file
 
 PROBLEMS = ("missing", "changed", "conflict")  # what `worldline verify` reports, in this order
+# ... and, after them, what it lists without failing: an input (a file the user gave, never one
+# Worldline wrote) rewritten in place and curated again, whose earlier row is history.
+NOTES = ("superseded",)
+INPUT_KINDS = frozenset({"raw_video"})
 
 
 @dataclass(frozen=True)
@@ -110,7 +114,9 @@ def audit(rows: Iterable[Recorded], root: Path) -> tuple[list[Finding], int, int
     Each file is hashed once however many rows name it. Per file: ``missing`` when it is gone;
     ``conflict`` for every row when rows name it with different sha256s (a file rewritten in
     place, or one path recorded twice: lineage cannot say which bytes its descendants saw);
-    ``changed`` when all rows agree and the bytes differ.
+    ``changed`` when all rows agree and the bytes differ; ``superseded`` (a note, not a problem)
+    for the earlier rows of an input video rewritten in place and curated again, whose newest
+    bytes one row records.
     """
     by_path: dict[Path, list[Recorded]] = {}
     checked = 0
@@ -124,10 +130,14 @@ def audit(rows: Iterable[Recorded], root: Path) -> tuple[list[Finding], int, int
             continue
         got = file_sha256(path)
         hashed += 1
-        if len({r.sha256 for r in named}) > 1:
+        if len({r.sha256 for r in named}) > 1 and got in {r.sha256 for r in named} and all(
+                r.kind in INPUT_KINDS for r in named):
+            findings += [Finding("superseded", r.kind, r.artifact_id, r.uri, r.sha256, got) for r in named
+                         if r.sha256 != got]
+        elif len({r.sha256 for r in named}) > 1:
             findings += [Finding("conflict", r.kind, r.artifact_id, r.uri, r.sha256, got) for r in named]
         else:
             findings += [Finding("changed", r.kind, r.artifact_id, r.uri, r.sha256, got) for r in named
                          if r.sha256 != got]
-    findings.sort(key=lambda f: (PROBLEMS.index(f.problem), f.uri, f.artifact_id))
+    findings.sort(key=lambda f: ((PROBLEMS + NOTES).index(f.problem), f.uri, f.artifact_id))
     return findings, checked, hashed

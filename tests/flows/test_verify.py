@@ -88,6 +88,21 @@ def test_verify_names_a_path_two_rows_claim_with_different_bytes(data_root):
         ["conflict", "clip", hashlib.sha256(b"clips/b.mp4").hexdigest()[:24]], ["conflict", "clip", "rewritten"]]
 
 
+def test_verify_lists_an_input_curated_again_after_a_rewrite_but_passes(data_root):
+    """An input edited in place and curated again left verify at exit 5 for good ("conflict")."""
+    _lineage(data_root)
+    (data_root / "in.mp4").write_bytes(b"second")
+    with Warehouse(Settings().warehouse_path) as wh:
+        wh.write(LineageBatch(artifacts=[
+            ArtifactRecord(artifact_id=i, kind="raw_video", uri=str(data_root / "in.mp4"),
+                           sha256=hashlib.sha256(data).hexdigest(), manifest_hash=MH)
+            for i, data in (("first", b"first"), ("second", b"second"))]))
+    result = runner.invoke(app, ["verify", "--format", "csv"])
+    assert result.exit_code == 0, result.output
+    assert [line.split(",")[:3] for line in result.stdout.splitlines()[1:]] == [["superseded", "raw_video", "first"]]
+    assert "all match lineage; 1 superseded (inputs rewritten in place and curated again)" in result.stderr
+
+
 def test_verify_refuses_bad_arguments(data_root):
     nothing = runner.invoke(app, ["verify"])
     assert nothing.exit_code == 3 and "no warehouse here yet" in nothing.output  # not built

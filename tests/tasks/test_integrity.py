@@ -68,3 +68,15 @@ def test_audit_hashes_each_file_once_and_names_missing_changed_and_conflicting(t
         ("missing", "m"), ("changed", "c"), ("conflict", "t1"), ("conflict", "t2")]
     assert findings[1].file_sha256 == _sha(b"2") and findings[0].file_sha256 is None
     assert integrity.audit(rows[:2], tmp_path)[0] == []
+
+
+def test_an_input_rewritten_in_place_and_curated_again_is_superseded_not_a_conflict(tmp_path):
+    (tmp_path / "in.mp4").write_bytes(b"new")
+    old, new = Recorded("r1", "raw_video", "in.mp4", _sha(b"old")), Recorded("r2", "raw_video", "in.mp4", _sha(b"new"))
+    findings, _, _ = integrity.audit([old, new], tmp_path)
+    assert [(f.problem, f.artifact_id) for f in findings] == [("superseded", "r1")]
+    (tmp_path / "in.mp4").write_bytes(b"third")  # bytes no row records: lineage cannot say which is right
+    assert [f.problem for f in integrity.audit([old, new], tmp_path)[0]] == ["conflict", "conflict"]
+    (tmp_path / "in.mp4").write_bytes(b"new")  # a file Worldline wrote is never superseded
+    clip = [Recorded("c1", "clip", "in.mp4", _sha(b"old")), Recorded("c2", "clip", "in.mp4", _sha(b"new"))]
+    assert [f.problem for f in integrity.audit(clip, tmp_path)[0]] == ["conflict", "conflict"]
