@@ -126,7 +126,9 @@ def test_the_image_runs_as_a_user_of_its_own_who_owns_the_data_root_only():
     chowned = [run for run in instructions("RUN") if f"chown -R {user}:{user}" in run]
     assert chowned and root in chowned[0].split() and "/app" not in chowned[0].split()  # the code stays root's
     # before VOLUME: a new volume copies the folder with its owner; later changes would be lost
-    assert order.index("VOLUME") > instructions("RUN").index(chowned[0]) and instructions("VOLUME") == [f'["{root}"]']
+    steps = dockerfile()
+    assert steps.index(("VOLUME", f'["{root}"]')) > steps.index(("RUN", chowned[0]))
+    assert instructions("VOLUME") == [f'["{root}"]']
     ui = image_env()["PREFECT_SERVER_UI_STATIC_DIRECTORY"]  # Prefect's own UI folder is root's
     assert ui.startswith(f"/home/{user}/") and ui in chowned[0].split()
     for name in SERVICES:

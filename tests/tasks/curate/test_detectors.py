@@ -41,7 +41,7 @@ def test_rgb_detectors_score_and_cut_exactly_as_the_stock_ones_on_generated_vide
     same_as_stock([np.stack(frames), np.stack(decoded)])
 
 
-def test_rgb_detectors_score_and_cut_exactly_as_the_stock_ones_on_bgr(real_frames):
+def test_rgb_detectors_score_and_cut_exactly_as_the_stock_ones_on_real_footage(real_frames):
     same_as_stock(list(real_frames.values()))
 
 

@@ -140,6 +140,13 @@ def test_shift_augmentation_trains_other_weights_and_is_seeded(demos):
     c, _ = train_vision(demos, SPEC, plain)
     assert all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), b.state_dict().values()))
     assert not all(torch.equal(x, y) for x, y in zip(a.state_dict().values(), c.state_dict().values()))
+    other = plain.model_copy(update={"seed": plain.seed + 1})
+    d, _ = train_vision(demos, SPEC, other)  # another seed: other initial weights and minibatches
+    assert not all(torch.equal(x, y) for x, y in zip(c.state_dict().values(), d.state_dict().values()))
+    few = {"steps": 4}  # from the same weights, other minibatches
+    e, _ = train_vision(demos, SPEC, plain.model_copy(update=few), start=c)
+    f, _ = train_vision(demos, SPEC, other.model_copy(update=few), start=c)
+    assert not all(torch.equal(x, y) for x, y in zip(e.state_dict().values(), f.state_dict().values()))
     assert np.isfinite(history[-1]["loss"])
     with pytest.raises(ValueError, match="shift augmentation needs the policy's own convolutions"):
         train_vision(demos, SPEC, shifted, tokenizer=_tokenizer())

@@ -46,8 +46,8 @@ def test_sample_batch_is_seeded(clips):
         sample_batch(clips, 99, 1, torch.Generator())
 
 
-def _train(clips, steps=4, seed=0):
-    torch.manual_seed(seed)
+def _train(clips, steps=4, seed=0, init_seed=0):
+    torch.manual_seed(init_seed)
     model = VideoTokenizer(preset("tiny-dv4x8x8"))
     config = TrainConfig(steps=steps, batch_size=2, clip_frames=9, size=32, seed=seed, threads=1, log_every=2,
                          warmup_steps=1)
@@ -99,6 +99,8 @@ def test_training_lowers_the_loss_and_is_deterministic(clips):
     assert history[-1]["loss"] < history[0]["loss"]
     again, _ = _train(clips)
     assert all(torch.equal(p, q) for p, q in zip(model.state_dict().values(), again.state_dict().values()))
+    other, _ = _train(clips, seed=1)  # the same initial weights, another seed: other batches, other weights
+    assert not all(torch.equal(p, q) for p, q in zip(model.state_dict().values(), other.state_dict().values()))
 
 
 def test_time_budget_stops_training(clips):

@@ -57,6 +57,12 @@ def test_same_seed_same_history():
     config = CONFIG.model_copy(update={"steps": 6, "log_every": 3})
     runs = [train_transfer(new_model(config), _pairs(), config) for _ in range(2)]
     assert [r["loss"] for r in runs[0]] == [r["loss"] for r in runs[1]]
+    # Another seed: other initial weights, and from the same ones other minibatches.
+    other = config.model_copy(update={"seed": config.seed + 1})
+    weights = zip(new_model(config).state_dict().values(), new_model(other).state_dict().values())
+    assert not all(torch.equal(a, b) for a, b in weights)
+    resampled = train_transfer(new_model(config), _pairs(), other)
+    assert [r["loss"] for r in resampled] != [r["loss"] for r in runs[0]]
 
 
 def test_the_temporal_loss_reads_frame_to_frame_change_only():

@@ -89,6 +89,9 @@ def test_training_is_seeded():
     history = train_diffusion(a, _sequences(), config)
     train_diffusion(b, _sequences(), config)
     assert _same(a, b) and not _same(a, _model())
+    c = _model()  # the same initial weights, another seed: other minibatches and noise, other weights
+    train_diffusion(c, _sequences(), config.model_copy(update={"seed": config.seed + 1}))
+    assert not _same(a, c)
     assert [h["step"] for h in history] == [3, 6] and set(history[0]) == {"step", "seconds", "loss", "lr"}
     budget = train_diffusion(_model(), _sequences(), config.model_copy(update={"seconds": 1e-6}))
     assert [h["step"] for h in budget] == [1]  # a budget ends training (and is logged)

@@ -53,6 +53,9 @@ def test_training_is_seeded_and_learns():
     history = train_world_model(a, _sequences(), config)
     train_world_model(b, _sequences(), config)
     assert all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), b.state_dict().values()))
+    c = _model()  # the same initial weights, another seed: other minibatches, other weights
+    train_world_model(c, _sequences(), config.model_copy(update={"seed": config.seed + 1}))
+    assert not all(torch.equal(p, q) for p, q in zip(a.state_dict().values(), c.state_dict().values()))
     assert [h["step"] for h in history] == [10, 20, 30, 40]
     assert history[-1]["loss"] < 0.5 * np.log(K) and history[-1]["accuracy"] > history[0]["accuracy"]
     assert history[-1]["copy_accuracy"] == 0.0  # every frame differs from the last: copying never works
