@@ -32,12 +32,14 @@ def verbose() -> bool:
 
 class ConsoleLog(logging.Handler):
     """Prefect's console handler, printed through ``err`` (plain text: no markup, no
-    highlighting); below WARNING only when verbose."""
+    highlighting); below WARNING only when verbose; never a flow run's error line that the CLI
+    states again as it exits (``restated``, flows/cli.py)."""
 
     def __init__(self, formatter: logging.Formatter | None = None, level: int = logging.NOTSET):
         super().__init__(level)
         self.setFormatter(formatter)
-        self.addFilter(lambda record: _verbose or record.levelno >= logging.WARNING)
+        self.addFilter(lambda record: (_verbose or record.levelno >= logging.WARNING)
+                       and not getattr(record, "restated", False))  # the CLI says it as it exits
 
     def emit(self, record: logging.LogRecord) -> None:
         try:
