@@ -48,7 +48,8 @@ def analyse_all(run: RunContext, inputs: list[Input], config: CurateConfig,
         cache = paths.resolve(root, paths.ANALYSIS_FILE, sha256=item.sha256, config_hash=config_hash)
         cached = analyse.load(cache) if stages[key].done else None
         if cached is not None:
-            cached.source = str(item.path)
+            cached.source = str(item.path)  # the name it has now: it may have been renamed since
+            cached.clips = [c.model_copy(update={"source_uri": cached.source}) for c in cached.clips]
             results.append(cached)
         else:
             futures[key] = (item, cache, stages[key].restart(),

@@ -98,3 +98,16 @@ def test_a_video_overwritten_while_it_is_curated_keeps_no_clip_from_the_new_byte
             assert clip.streams.video[0].frames > 0
     again = curate([str(inbox)])  # the new bytes are a new video: curated in full
     assert again["failed"] == 0 and again["status"] == "completed", again
+
+
+def test_a_video_renamed_between_runs_is_encoded_from_its_new_name(prefect_harness, tmp_path, data_root):
+    """Its analysis comes from the cache (same bytes); the clips in it named the old path, so an
+    encode the first run had not made (another crf here) opened a file that was gone."""
+    inbox = tmp_path / "inbox"
+    good, = good_videos(inbox, seeds=(0,))
+    assert curate([str(inbox)])["status"] == "completed"
+    good.rename(inbox / "renamed.mp4")
+    config = tmp_path / "crf.yaml"
+    config.write_text("encode: {crf: 30}\n")
+    again = curate([str(inbox)], config=str(config))
+    assert again["status"] == "completed" and again["failed"] == 0 and again["clips"] >= 1, again
