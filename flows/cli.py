@@ -29,8 +29,9 @@ class _InputErrorsInOneLine(logging.Filter):
     """Prefect logs a failed flow or task run's exception with its traceback; from the CLI an
     input error (FileNotFoundError, ValueError: a missing file, a refused manifest or contract),
     a WorldlineError, an interrupt, a full disk or a place that cannot be written is then stated
-    in one line, as the CLI states it again on exit. A flow run's own line for a WorldlineError,
-    and a flow or task run's for such an OSError, which the CLI states as it exits, is marked ``restated``:
+    in one line, as the CLI states it again on exit. A flow run's own line for a WorldlineError or
+    an interrupt (which DuckDB reports as "Query interrupted"), and a flow or task run's for such
+    an OSError, which the CLI states as it exits, is marked ``restated``:
     the terminal leaves it out (flows/console.py), Prefect's API keeps it. Other errors keep their
     traceback, and so does every run a worker executes."""
 
@@ -44,7 +45,8 @@ class _InputErrorsInOneLine(logging.Filter):
         if exc is not None and (isinstance(exc, (FileNotFoundError, ValueError, WorldlineError)) or signal_name(exc)
                                 or machine):
             record.exc_info = record.exc_text = None
-            record.restated = machine or record.name == "prefect.flow_runs" and isinstance(exc, WorldlineError)
+            record.restated = machine or record.name == "prefect.flow_runs" and (
+                isinstance(exc, WorldlineError) or bool(signal_name(exc)))
         return True
 
 

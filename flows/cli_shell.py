@@ -28,13 +28,15 @@ class Commands(TyperGroup):
     user can act on: a WorldlineError (raised anywhere, a flow included), a full disk, SIGTERM."""
 
     def invoke(self, ctx):
-        from flows.ephemeral import exit_code
+        from flows.ephemeral import exit_code, signal_name
 
         try:
             with held:
                 return super().invoke(ctx)
         except BaseException as exc:
             code = exit_code(exc)  # after SIGINT or SIGTERM, whatever the interrupt surfaced as
+            if code is not None and not isinstance(exc, typer.Exit):
+                say(f"interrupted by {signal_name(exc)}")  # Prefect's line named what it surfaced as
             if code is None and isinstance(exc, WorldlineError):
                 say(str(exc))
                 code = exc.exit_code

@@ -81,6 +81,9 @@ def test_an_interrupted_command_ends_within_seconds_recording_what_it_finished(t
     assert proc.returncode == code, output[-3000:]
     assert took < EXIT_WITHIN_S, f"{how}: exited {took:.1f} s after the signal"
     assert "Traceback" not in output, output[-3000:]
+    said = [line for line in output.splitlines() if line.strip()]  # what it surfaced as is not the last word
+    assert said and (said[-1] == f"interrupted by {sig.name}" or said[-1].endswith("stopping now")), output[-3000:]
+    assert "Query interrupted" not in output, output[-3000:]
     time.sleep(0.5)  # the server notices its parent's exit within POLL_S
     assert processes_of(root) == []
 
