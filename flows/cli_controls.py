@@ -8,7 +8,8 @@ from pathlib import Path
 
 import typer
 
-from flows.cli_shell import app, command, fail, out, say, writing
+from flows.cli_command import command
+from flows.cli_shell import app, fail, out, say, writing
 from schemas.errors import EXIT_PARTIAL
 from flows.params_data import ControlsParams
 

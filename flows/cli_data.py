@@ -11,7 +11,8 @@ from typing import Optional
 import typer
 
 from flows import cli_checks as need
-from flows.cli_shell import FORMAT, app, check_format, command, fail, out, print_rows, writing
+from flows.cli_command import command
+from flows.cli_shell import FORMAT, app, check_format, fail, out, print_rows, writing
 from flows.params_data import CorpusParams, CurateParams, SimulateParams
 from schemas.errors import EXIT_ENVIRONMENT, EXIT_PARTIAL, WorldlineError
 from schemas.paths import output_folders

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from flows import cli_checks as need
-from flows.cli_shell import app, command, err, evaluate_app, fail, out, print_rows, writing
+from flows.cli_command import command
+from flows.cli_shell import app, err, evaluate_app, fail, out, print_rows, writing
 from flows.params_policy import EvaluateParams, LoopParams, PanelsParams, TrainPolicyParams
 from schemas.settings import Settings
 

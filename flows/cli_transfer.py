@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 from flows import cli_checks as need
-from flows.cli_shell import app, command, out, refuse, writing
+from flows.cli_command import command
+from flows.cli_shell import app, out, refuse, writing
 from flows.params_transfer import TrainTransferParams, TransferParams
 from schemas.settings import Settings
 

@@ -5,7 +5,8 @@ from __future__ import annotations
 from pathlib import Path
 
 from flows import cli_checks as need
-from flows.cli_shell import app, command, evaluate_app, fail, out, refuse, writing
+from flows.cli_command import command
+from flows.cli_shell import app, evaluate_app, fail, out, refuse, writing
 from flows.params_world import CameraParams, PhysicsParams, RigParams, TokenizeParams, TrainParams
 from schemas.settings import Settings
 
