@@ -9,7 +9,7 @@ from pathlib import Path
 
 import typer
 
-from flows.cli_shell import app, out, say
+from flows.cli_shell import app, held, out, say
 from schemas.errors import EXIT_PARTIAL
 from schemas.settings import Settings
 
@@ -47,8 +47,10 @@ def lerobot(
 ) -> None:
     """Write episodes as a LeRobot dataset (v3.0, what `lerobot` 0.4 reads): one row per video
     frame, float32 state and action, the MP4s per camera; exit 1 if damaged episodes were left out."""
+    from flows import ephemeral
     from tasks.export.run import export_lerobot
 
+    held.enter_context(ephemeral.interrupts_handled())  # SIGTERM as Ctrl-C: the staging folder is removed
     result = export_lerobot(sources, dest, Settings().data_root, overwrite=overwrite, instruction_of=_from_lineage,
                             on_damaged=lambda line: say(f"skipped {line}"))
     done = result.exported

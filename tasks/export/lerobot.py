@@ -25,8 +25,10 @@ the destination and renamed into place at the end (``publish``).
 
 from __future__ import annotations
 
+import glob
 import json
 import os
+import re
 import shutil
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -238,32 +240,66 @@ def _write_json(path: Path, body: dict) -> None:
 
 
 def staging_for(out: Path) -> Path:
-    """An empty temporary folder beside ``out`` (same file system, so the rename is atomic)."""
+    """An empty temporary folder beside ``out`` (same file system, so the rename is atomic).
+    Staging folders of exports to ``out`` whose process is gone (killed) are removed first."""
     out = out.absolute()
-    out.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a file where a folder above it belongs, no permission
+        raise InvalidInput(f"{out}: cannot be created ({exc.strerror or exc}: {exc.filename or out.parent})") from None
+    for stale in out.parent.glob(f".{glob.escape(out.name)}.export-*.tmp"):
+        pid = stale.name.rsplit("-", 1)[-1].removesuffix(".tmp")
+        if pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            shutil.rmtree(stale, ignore_errors=True)
     staging = out.parent / f".{out.name}.export-{os.getpid()}.tmp"
     shutil.rmtree(staging, ignore_errors=True)
     staging.mkdir()
     return staging
 
 
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+# What an export writes (the layout above): with --overwrite, a folder holding anything else is
+# not replaced, since replacing it would delete what the user put there.
+EXPORT_FILES = re.compile(r"meta/(info|stats|worldline)\.json|meta/tasks\.parquet|meta/episodes/chunk-\d+/file-\d+\.parquet"
+                          r"|data/chunk-\d+/file-\d+\.parquet|videos/observation\.images\.[^/]+/chunk-\d+/file-\d+\.mp4")
+
+
 def check_destination(out: Path, overwrite: bool) -> None:
-    """A file, or a folder with something in it, is refused; with ``overwrite``, a folder holding
-    a dataset (an earlier export) is not."""
-    if out.is_file() or out.is_symlink():
+    """A file, or a folder with something in it, is refused; with ``overwrite``, a folder that
+    is an earlier export (its meta/worldline.json) holding nothing an export does not write is not."""
+    if out.is_symlink():
+        raise InvalidInput(f"{out}: a symlink; --out names the folder the dataset is written to, not a link to one")
+    if out.exists() and not out.is_dir():
         raise InvalidInput(f"{out}: a file is there; --out names the folder the dataset is written to")
     if out.is_dir() and any(out.iterdir()):
         if not overwrite:
             raise InvalidInput(f"{out}: not empty; choose an empty or new folder, or pass --overwrite to replace it")
-        if not (out / "meta" / "info.json").is_file():
-            raise InvalidInput(f"{out}: not a LeRobot dataset (no meta/info.json); --overwrite replaces only an "
-                               "earlier export")
+        if not (out / "meta" / "info.json").is_file() or not (out / "meta" / "worldline.json").is_file():
+            raise InvalidInput(f"{out}: not an export of this tool (no meta/info.json and meta/worldline.json); "
+                               "--overwrite replaces only an earlier export")
+        foreign = sorted(p.relative_to(out).as_posix() for p in out.rglob("*")
+                         if not p.is_dir() and not EXPORT_FILES.fullmatch(p.relative_to(out).as_posix()))
+        if foreign:
+            shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+            raise InvalidInput(f"{out}: holds files an export does not write ({shown}); --overwrite would delete "
+                               "them: move them out first, or choose another folder")
 
 
-def publish(staging: Path, out: Path) -> None:
-    """Put the finished ``staging`` folder at ``out``: what was there (checked by
-    ``check_destination``) is moved aside first and removed only once the new one is in place."""
+def publish(staging: Path, out: Path, overwrite: bool = False) -> None:
+    """Put the finished ``staging`` folder at ``out``: what is there is checked again (something
+    may have been put there, or another export finished there, while this one ran), moved aside,
+    and removed only once the new one is in place."""
     out = out.absolute()
+    check_destination(out, overwrite)
     old = None
     if out.exists():
         old = out.parent / f".{out.name}.replaced-{os.getpid()}.tmp"

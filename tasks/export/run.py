@@ -61,7 +61,7 @@ def export_lerobot(sources: Sequence[str], out: Path, root: Path, overwrite: boo
     staging = lerobot.staging_for(out)
     try:
         exported = lerobot.write_lerobot(episodes, shape, staging, task_of, robot_type, on_episode)
-        lerobot.publish(staging, out)
+        lerobot.publish(staging, out, overwrite)
     finally:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)

@@ -5,8 +5,10 @@ task text from the manifest YAML, or from lineage for a manifest named by hash o
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
+import sys
 
 import pandas as pd
 import pytest
@@ -113,3 +115,27 @@ def test_the_console_script_lists_the_export_command():
     done = subprocess.run([str(REPO / ".venv" / "bin" / "worldline"), "export", "--help"], capture_output=True,
                           text=True, timeout=120)
     assert done.returncode == 0 and "lerobot" in done.stdout
+
+
+@pytest.mark.parametrize("sig, code", [("SIGTERM", 143), ("SIGINT", 130)])
+def test_a_signal_while_writing_leaves_no_staging_folder(at, tmp_path, sig, code):
+    """SIGTERM killed an export outright (no handler): its staging folder beside --out stayed,
+    and the next export, under another pid, never removed it."""
+    out = tmp_path / "dataset"
+    script = f"""
+import os, signal, sys
+import tasks.export.lerobot as lerobot
+write = lerobot.write_lerobot
+def interrupted(*args, **kwargs):
+    write(*args, **kwargs)  # the staging folder is full: the signal comes before it is published
+    os.kill(os.getpid(), signal.{sig})
+lerobot.write_lerobot = interrupted
+sys.argv = ["worldline", "export", "lerobot", {str(at["manifest"])!r}, "--out", {str(out)!r}]
+from flows.cli import main
+main()
+"""
+    done = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "WORLDLINE_DATA_ROOT": str(at["root"])})
+    assert done.returncode == code, done.stderr[-2000:]
+    assert _lines(done.stderr)[-1] == f"interrupted by {sig}" and "Traceback" not in done.stderr
+    assert list(tmp_path.iterdir()) == []  # neither the dataset nor its staging folder

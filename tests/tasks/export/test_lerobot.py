@@ -195,16 +195,76 @@ def test_the_destination_is_never_overwritten_silently(world, exported, tmp_path
     (busy / "notes.txt").write_text("mine")
     with pytest.raises(InvalidInput, match="not empty"):
         export_lerobot([str(world["episodes"])], busy, world["root"])
-    with pytest.raises(InvalidInput, match="not a LeRobot dataset"):
+    with pytest.raises(InvalidInput, match="not an export of this tool"):
         export_lerobot([str(world["episodes"])], busy, world["root"], overwrite=True)
     assert (busy / "notes.txt").read_text() == "mine"
+    # Another tool's LeRobot dataset (no meta/worldline.json) was deleted whole by --overwrite.
+    theirs = tmp_path / "theirs"
+    (theirs / "meta").mkdir(parents=True)
+    (theirs / "meta" / "info.json").write_text('{"codebase_version": "v2.1"}')
+    (theirs / "raw.bin").write_bytes(b"theirs")
+    with pytest.raises(InvalidInput, match="not an export of this tool"):
+        export_lerobot([str(world["episodes"])], theirs, world["root"], overwrite=True)
+    assert (theirs / "raw.bin").read_bytes() == b"theirs"
     earlier = tmp_path / "earlier"
     shutil.copytree(out, earlier)
     with pytest.raises(InvalidInput, match="--overwrite"):
         export_lerobot([world["other_digest"]], earlier, world["root"])
+    # The user's own files inside an earlier export were deleted with it, without a word.
+    (earlier / "NOTES.md").write_text("mine")
+    (earlier / "mywork").mkdir()
+    (earlier / "mywork" / "a.txt").write_text("mine")
+    with pytest.raises(InvalidInput, match=r"holds files an export does not write \(NOTES.md, mywork/a.txt\)"):
+        export_lerobot([world["other_digest"]], earlier, world["root"], overwrite=True)
+    assert (earlier / "NOTES.md").read_text() == "mine" and (earlier / "mywork" / "a.txt").read_text() == "mine"
+    shutil.rmtree(earlier / "mywork")
+    (earlier / "NOTES.md").unlink()
     export_lerobot([world["other_digest"]], earlier, world["root"], overwrite=True)
     assert json.loads((earlier / "meta/info.json").read_text())["features"]["observation.images.side"]["shape"] == [32, 48, 3]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["busy", "earlier"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["busy", "earlier", "theirs"]
+
+
+def test_every_file_an_export_writes_is_one_overwrite_may_replace(exported):
+    from tasks.export.lerobot import EXPORT_FILES
+
+    _, out = exported
+    files = [p.relative_to(out).as_posix() for p in out.rglob("*") if p.is_file()]
+    assert files and [f for f in files if not EXPORT_FILES.fullmatch(f)] == []
+
+
+def test_what_appears_at_the_destination_while_exporting_is_not_replaced(world, tmp_path, monkeypatch):
+    """A folder made at --out while the export ran (or another export's) was deleted, without --overwrite."""
+    from tasks.export import lerobot
+
+    out = tmp_path / "out"
+    write = lerobot.write_lerobot
+
+    def meanwhile(*args, **kwargs):
+        done = write(*args, **kwargs)
+        out.mkdir()
+        (out / "mine.txt").write_text("mine")  # the user, or a second export, got there first
+        return done
+
+    monkeypatch.setattr(lerobot, "write_lerobot", meanwhile)
+    with pytest.raises(InvalidInput, match="not empty"):
+        export_lerobot([str(world["episodes"])], out, world["root"])
+    assert (out / "mine.txt").read_text() == "mine" and sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_a_destination_that_cannot_be_made_and_a_killed_exports_staging(world, tmp_path):
+    taken = tmp_path / "afile"
+    taken.write_text("mine")
+    with pytest.raises(InvalidInput, match=r"afile/ds: cannot be created \((File exists|Not a directory)"):
+        export_lerobot([str(world["episodes"])], taken / "ds", world["root"])
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link").symlink_to(tmp_path / "real")
+    with pytest.raises(InvalidInput, match="link: a symlink; --out names the folder"):
+        export_lerobot([str(world["episodes"])], tmp_path / "link", world["root"])
+    dead = tmp_path / ".ds.export-999999999.tmp"  # what a SIGKILLed export left (no such process)
+    (dead / "videos").mkdir(parents=True)
+    export_lerobot([str(world["episodes"])], tmp_path / "ds", world["root"])
+    assert not dead.exists() and taken.read_text() == "mine"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["afile", "ds", "link", "real"]
 
 
 def test_sources_that_name_no_episodes_are_refused(world, tmp_path):
