@@ -21,6 +21,7 @@ from schemas.settings import Settings
 from tasks import manifests
 from tasks.controls import files as control_files
 from tasks.controls.render import Recorder
+from tasks.lookup import verified_policy
 from tasks.policy.base import Policy
 from tasks.policy.results import checkpoint_record
 from tasks.policy.specs import PolicySpecError, load_policy
@@ -68,6 +69,8 @@ def simulate(manifest: str, episodes: Episodes = 2, controls: bool = False, poli
         # (the same seed renders the same videos) and get them; without, keys are as they were.
         tags = [*(["controls"] if controls else []), *([files.policy_id(extra["policy"])] if driver else [])]
         keys = {stable_id("episode", run.manifest_hash, str(i), *tags): i for i in range(episodes)}
+        if driver:  # weights changed behind lineage's back: one line, exit 5, before any episode
+            verified_policy(run.warehouse, settings.data_root, driver)
         checkpoint = checkpoint_record(driver, settings.data_root, by="simulate") if driver else None
         by_future = {simulate_episode.submit(scenario, run.manifest_hash, keys[key], settings.data_root, controls,
                                              driver): stage

@@ -22,6 +22,7 @@ from schemas.hashing import content_hash, stable_id
 from schemas.records import EdgeRecord
 from schemas.settings import Settings
 from tasks import progress as ticks
+from tasks.lookup import verified_file
 from tasks.tokenize import data, phases, tokens
 from tasks.tokenize.inputs import init_checkpoint, shard_artifacts, shard_files
 from tasks.tokenize.train import TrainConfig
@@ -94,7 +95,7 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
             print(f"trained {preset_name} for {steps} steps in {time.perf_counter() - stage.started:.1f}s: "
                   f"loss {history[-1]['loss']:.4f}, train PSNR {history[-1]['psnr']:.2f} dB")
 
-        written = []
+        written, trained = [], bool(history)  # weights this run wrote need no check
         with progress(len(known), "encode token shards") as bar:
             for index, (path, uri, shard_id, shard_mh) in enumerate(known):
                 target, rel = tokens.token_shard_path(root, checkpoint_id, index)
@@ -103,6 +104,9 @@ def tokenize(shards: str, preset_name: str = "tiny-dv4x8x8", steps: Steps = 200,
                 if stage is None or stage.done:  # no clips, or encoded by an earlier run
                     bar.advance()
                     continue
+                if not trained:  # trained by an earlier run: its weights as lineage recorded them (else exit 5)
+                    trained = bool(verified_file(run.warehouse, root, folder / tokens.WEIGHTS_FILE, "checkpoint",
+                                                 "tokenizer checkpoint"))
                 digest, nbytes, n, score = encode_shard(folder, clips[uri], target, max_encode_frames)
                 stage.finish(len(clips[uri]), n, tokens.token_shard_lineage(
                     rel, digest, nbytes, n, checkpoint_id, shard_id, stage.id, shard_mh or mh, score), attrs={"source": uri})

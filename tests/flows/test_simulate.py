@@ -89,3 +89,29 @@ def test_a_policy_drives_episodes_into_a_folder_of_their_own(prefect_harness, da
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         _, rows = wh.query("SELECT attrs->'policy'->>'name' FROM artifacts WHERE kind = 'episode' ORDER BY 1")
     assert rows == [("scripted@0.5",), ("scripted@0.9",), (None,)]
+
+
+def test_a_policy_checkpoint_whose_weights_changed_drives_no_episode(prefect_harness, data_root, tmp_path):
+    """`simulate --policy bc:PATH` drove episodes with tampered weights and recorded them, edge and
+    all, where `evaluate policies` refuses the same checkpoint (exit 5)."""
+    import re
+    from pathlib import Path
+
+    import pytest
+
+    from flows.policy import train_policy
+    from schemas.errors import TamperedArtifact
+
+    manifest = small_manifest(tmp_path)
+    folder = Path(train_policy(str(manifest), episodes=1, steps=4, holdout=0)["folder"])
+    weights = folder / "model.safetensors"
+    data = bytearray(weights.read_bytes())
+    data[int(len(data) * 0.9)] ^= 0xFF
+    weights.write_bytes(bytes(data))
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        before = wh.counts()["artifacts"]
+    with pytest.raises(TamperedArtifact, match=rf"^{re.escape(str(weights))}: sha256 \w+ differs from lineage's"):
+        simulate(str(manifest), 1, policy=f"bc:{folder}")
+    with Warehouse(Settings().warehouse_path, read_only=True) as wh:
+        assert wh.counts()["artifacts"] == before
+    assert not list((data_root / "episodes").glob("*-*"))  # no policy folder of episodes

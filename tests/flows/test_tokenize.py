@@ -140,6 +140,26 @@ def test_tokenize_refuses_a_changed_shard_and_one_curate_never_wrote(prefect_har
     assert _counts() == before
 
 
+def test_a_rerun_does_not_encode_with_a_tokenizer_whose_weights_changed(prefect_harness, data_root, inbox):
+    """Training skipped (done before), a missing token shard was encoded again with whatever the
+    weights file held, and recorded: the checkpoint's bytes are checked first (exit 5)."""
+    from schemas.errors import TamperedArtifact
+
+    folder, config = inbox
+    curated = curate([str(folder)], str(MANIFEST), str(config))
+    first = tokenize(curated["manifest_hash"], "tiny-dv4x8x8", steps=3, size=32, batch_size=2)
+    weights = data_root / first["checkpoint"] / "model.safetensors"
+    (data_root / first["token_shards"][0]).unlink()
+    _flip(weights, 0.9)
+    before = _counts()
+    with pytest.raises(TamperedArtifact, match=rf"^{weights}: sha256 \w+ differs from lineage's"):
+        tokenize(curated["manifest_hash"], "tiny-dv4x8x8", steps=3, size=32, batch_size=2)
+    assert _counts() == before and not (data_root / first["token_shards"][0]).exists()
+    _flip(weights, 0.9)  # the bytes lineage recorded: encoded again as before
+    again = tokenize(curated["manifest_hash"], "tiny-dv4x8x8", steps=3, size=32, batch_size=2)
+    assert again["token_shards"] == first["token_shards"] and (data_root / first["token_shards"][0]).is_file()
+
+
 def test_curate_encodes_a_changed_clip_again_instead_of_sharding_it(prefect_harness, data_root, inbox):
     """Issue 26: a re-run reused clip files whose encode stage was done and re-hashed whatever
     was on disk into new shards. Now a reused clip must match lineage; one that does not is
