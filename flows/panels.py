@@ -27,7 +27,7 @@ from tasks.guard.config import GuardConfig
 from tasks.guard.faces import guard_frames
 from tasks.guard.lineage import face_decisions, text_decisions
 from tasks.guard.text import scan_fields
-from tasks.lookup import verified_file, verified_world_model
+from tasks.lookup import verified_episode, verified_world_model
 from tasks.panels import sheet
 from tasks.panels.grid import expand, primary_camera, resolve_grid
 from tasks.panels.lineage import panel_body, panel_lineage
@@ -59,9 +59,7 @@ def simulate_variants(run: RunContext, spec: PanelSpec, variants: list[ScenarioM
                               manifest_hash=pv.manifest_hash)
             done = files.read_episode(root, pv.manifest_hash, index) if stage.done else None
             if done is not None:  # reused: its files must still be the ones lineage recorded (issue 26)
-                verified_file(run.warehouse, root, done.table, "episode", "episode")
-                for video in done.videos.values():
-                    verified_file(run.warehouse, root, video, "episode_video", "episode video")
+                verified_episode(run.warehouse, root, done)
                 out[(pv.cell, index)] = done
             else:
                 todo[(pv.cell, index)] = (stage, simulate_episode.submit(variant, pv.manifest_hash, index, root))

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from schemas.errors import StepMissing
+from schemas.errors import StepMissing, TamperedArtifact
 from tasks import integrity
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError
 from warehouse import integrity as claims
@@ -81,6 +81,21 @@ def verified_world_model(warehouse: Warehouse | None, root: Path, folder: Path |
     if isinstance(tokenizer, str):
         verified_checkpoint(warehouse, root, integrity.path_of(tokenizer, Path(root).resolve()))
     return artifact_id
+
+
+def verified_episode(warehouse: Warehouse | None, root: Path, episode) -> None:
+    """A reused episode's step table and camera videos checked against lineage: each file's
+    bytes (``verified_file``), and each video the one lineage recorded as rendered for this
+    episode. Videos are recorded by content, so at a path with no row of its own (a panel's
+    nominal cell, byte for byte the manifest's episodes) a copy of another episode's video
+    matched that episode's row and was used (TamperedArtifact now)."""
+    episode_id, _, _ = verified_file(warehouse, root, episode.table, "episode", "episode")
+    rendered = claims.children(warehouse, [episode_id], "rendered") if warehouse is not None and episode_id else None
+    for video in episode.videos.values():
+        video_id, _, digest = verified_file(warehouse, root, video, "episode_video", "episode video")
+        if rendered is not None and video_id not in rendered:
+            raise TamperedArtifact(f"{video}: sha256 {digest[:12]} is not a video lineage recorded for this "
+                                   f"episode ({episode_id[:12]}); run `worldline verify`")
 
 
 def verified_policy(warehouse: Warehouse | None, root: Path, policy) -> None:

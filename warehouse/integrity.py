@@ -46,6 +46,15 @@ def parents(warehouse: Warehouse, child_ids: Sequence[str], relation: str) -> li
     return rows
 
 
+def children(warehouse: Warehouse, parent_ids: Sequence[str], relation: str) -> set[str]:
+    """The ids of the ``relation`` children of ``parent_ids`` (e.g. the videos an episode rendered)."""
+    if not parent_ids:
+        return set()
+    _, rows = warehouse.query("SELECT DISTINCT child_id FROM edges WHERE relation = $relation AND "
+                              "list_contains($ids, parent_id)", {"relation": relation, "ids": list(parent_ids)})
+    return {r[0] for r in rows}
+
+
 def files(warehouse: Warehouse, manifest_hash: str | None = None) -> list[tuple]:
     """Every artifact lineage recorded as a file, or with ``manifest_hash`` every row naming a
     path one of that manifest's artifacts names (so two rows claiming its file both show)."""

@@ -151,3 +151,28 @@ def test_a_reused_episode_whose_files_changed_is_refused(prefect_harness, data_r
     video.write_bytes(bytes(data))
     with pytest.raises(TamperedArtifact, match=rf"^{video}: sha256 \w+ differs from lineage's"):
         panels(str(manifest), str(grid))
+
+
+def test_a_reused_episode_with_another_episodes_video_is_refused(prefect_harness, data_root, tmp_path):
+    """The nominal cell's episodes are byte for byte the manifest's own, and lineage records a
+    video by its bytes: at the cell's path there is no row of its own, so episode 0's video
+    copied over episode 1's matched episode 0's row and the panel used it without a word."""
+    import filecmp
+    import shutil
+
+    import pytest
+
+    from flows.simulate import simulate
+    from schemas.errors import TamperedArtifact
+
+    manifest, grid = _tiny(tmp_path)
+    own = simulate(str(manifest), 2)["manifest_hash"][:12]
+    panels(str(manifest), str(grid))
+    twins = [f for f in sorted((data_root / "episodes").iterdir()) if f.name != own and filecmp.cmp(
+        f / "episode_000000" / "overhead.mp4", data_root / "episodes" / own / "episode_000000" / "overhead.mp4",
+        shallow=False)]
+    assert len(twins) == 1  # the nominal cell's folder
+    first, second = (twins[0] / f"episode_00000{i}" / "overhead.mp4" for i in (0, 1))
+    shutil.copyfile(first, second)
+    with pytest.raises(TamperedArtifact, match=rf"^{second}: sha256 \w+ is not a video lineage recorded for this episode"):
+        panels(str(manifest), str(grid))
