@@ -25,6 +25,7 @@ import torch
 
 from models.tokenizer import VideoTokenizer
 from schemas import paths
+from schemas.errors import TamperedArtifact
 from tasks.curate.shards import read_shard
 from tasks.tokenize.data import find_shards, square, usable_frames
 from tasks.tokenize.tokens import read_token_shard
@@ -200,6 +201,8 @@ def episode_parts(directory: Path, camera: str, temporal_compression: int, encod
     meta = read_meta(directory)
     video = directory / f"{camera}.mp4"
     if not video.is_file():
+        if camera in meta.get("cameras", []):  # simulate wrote it: gone since, behind lineage's back
+            raise TamperedArtifact(f"{video}: missing, though the episode was recorded with it; run `worldline verify`")
         raise FileNotFoundError(f"{directory}: no camera {camera!r} (has {', '.join(meta.get('cameras', []))})")
     values, fps = encoded(video)
     step_time, action = read_steps(directory)

@@ -11,6 +11,7 @@ import torch
 from models.tokenizer import VideoTokenizer
 from models.tokenizer import preset as tokenizer_preset
 from schemas import paths
+from schemas.errors import TamperedArtifact
 from tasks.curate.shards import SHARD_SCHEMA
 from tasks.tokenize import tokens
 from tasks.world import data
@@ -102,6 +103,9 @@ def test_load_episode_encodes_aligns_and_caches(episode, tmp_path, monkeypatch):
     assert len(data.load_episodes([episode], tokenizer, 32)) == 1
     with pytest.raises(FileNotFoundError, match="no camera 'wrist'"):
         data.load_episode(episode, "wrist", tokenizer, 32)
+    (episode / "overhead.mp4").unlink()  # a camera the episode was recorded with, deleted since
+    with pytest.raises(TamperedArtifact, match=r"overhead\.mp4: missing, though the episode was recorded with it"):
+        data.load_episode(episode, "overhead", tokenizer, 32)
 
 
 def test_load_token_sequences_with_captions(tmp_path):
