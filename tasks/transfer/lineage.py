@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
+from types import SimpleNamespace
 
 from schemas import paths
 from schemas.errors import StepMissing
@@ -24,7 +25,7 @@ from tasks.guard.faces import FaceDecision
 from tasks.guard.lineage import face_attrs, face_decisions, text_decisions
 from tasks.guard.text import scan_fields
 from tasks.integrity import path_of, uri_of
-from tasks.lookup import checkpoint_folder, is_hex_id, verified_file
+from tasks.lookup import checkpoint_folder, is_hex_id, verified_episode, verified_file
 from tasks.world.checkpoints import checkpoint_lineage
 from warehouse import queries
 
@@ -83,7 +84,12 @@ def model_inputs(warehouse, root: Path, folder: Path) -> Inputs:
 
 
 def episode_inputs(warehouse, root: Path, model: Inputs, video: Path, controls: dict[str, Path]) -> Inputs:
-    """``model`` with the source video and the rendered control files, each checked against lineage."""
+    """``model`` with the source video and the rendered control files, each checked against lineage;
+    in an episode folder lineage recorded, the video must be one that episode rendered (its step
+    table, copied beside the clip as its labels, must describe these frames)."""
+    table = Path(video).parent / Path(paths.EPISODE_TABLE).name
+    if table.is_file():
+        verified_episode(warehouse, root, SimpleNamespace(table=table, videos={"source": Path(video)}))
     video_id, _, sha = verified_file(warehouse, root, video, "episode_video", "episode video")
     new = list(model.new)
     if video_id is None:

@@ -170,3 +170,29 @@ def test_train_transfer_records_a_transfer_model_that_transfer_runs(world):
     assert train_config(model_id)["temporal"] == 1.0 and train_config(model_id)["clip_frames"] == 3  # the defaults
     assert train_config((folders - {model_id}).pop())["temporal"] == 0.0
 
+
+
+def test_an_episode_holding_another_episodes_video_is_not_transferred(world, tmp_path):
+    """Its step table is copied beside the clip as its labels, so the video must be one this very
+    episode rendered. A panel's nominal cell is byte for byte the manifest's own episodes, so its
+    videos have no lineage rows of their own, and a copy of another episode's video there matched
+    that episode's row and was transferred under the wrong labels."""
+    import filecmp
+    import shutil
+
+    root, manifest, episode, model = world
+    assert runner.invoke(app, ["simulate", str(manifest), "--episodes", "2"]).exit_code == 0
+    grid = tmp_path / "grid.yaml"
+    grid.write_text("name: nominal-only\ncells:\n  - name: nominal\nepisodes: 2\n")
+    result = runner.invoke(app, ["panels", str(manifest), "--grid", str(grid)])
+    assert result.exit_code == 0, result.output
+    (cell,) = [f for f in (root / "episodes").iterdir() if f != episode.parent and filecmp.cmp(
+        f / "episode_000001" / "side.mp4", episode.parent / "episode_000001" / "side.mp4", shallow=False)]
+    shutil.copyfile(cell / "episode_000001" / "side.mp4", cell / "episode_000000" / "side.mp4")
+    refused = runner.invoke(app, ["transfer", str(cell / "episode_000000"), "--model", str(model), "--look", "dim",
+                                  "--weights", "depth=0,segmentation=0"])
+    assert refused.exit_code == 5, refused.output
+    said = lines(refused)[-1]
+    assert said.startswith(f"{cell / 'episode_000000' / 'side.mp4'}: sha256 ")
+    assert "is not a video lineage recorded for this episode" in said, said
+    assert not list((root / "transfer").glob(f"{cell.name}*"))
