@@ -29,6 +29,7 @@ from schemas.records import MetricRecord
 from schemas.settings import Settings
 from tasks import manifests
 from tasks.checkpoint_files import CONFIG_FILE
+from tasks.lookup import verified_file
 from tasks.policy import bc, vision, vision_train
 from tasks.policy.features import FEATURES_VERSION
 from tasks.policy.lineage import checkpoint_lineage
@@ -141,6 +142,8 @@ def train_policy(manifest: str, episodes: Episodes = 30, steps: Steps = 3000, pr
                                                   stage_run_id=stage.id, manifest_hash=run.manifest_hash,
                                                   attrs={"seeds": test_seeds}))
             stage.finish(episodes, 1, batch, attrs={"checkpoint_id": checkpoint_id, "steps": steps})
+        else:  # trained before: handed back only while its weights are the ones lineage recorded (else exit 5)
+            verified_file(run.warehouse, root, folder / bc.WEIGHTS_FILE, "checkpoint", "policy checkpoint")
         rows = [(s, "success" if ok else "failure", why) for s, ok, why in outcomes]
         publish("train-policy", f"checkpoint {checkpoint_id}" + ("" if rate is None else f", held-out success {rate:.2f}"),
                 markdown_table(("held-out seed", "outcome", "reason"), rows), "behaviour-cloning policy and its held-out success")

@@ -40,6 +40,17 @@ def test_train_policy_records_checkpoint_loss_and_held_out_success(prefect_harne
 
     again = train_policy(str(manifest), episodes=2, steps=20, holdout=1)
     assert again["checkpoint_id"] == result["checkpoint_id"] and again["history"] == []  # found done
+    # found done, but its weights changed since: it was handed back as it was (exit 0)
+    import re
+
+    from schemas.errors import TamperedArtifact
+
+    weights = folder / "model.safetensors"
+    data = bytearray(weights.read_bytes())
+    data[int(len(data) * 0.9)] ^= 0xFF
+    weights.write_bytes(bytes(data))
+    with pytest.raises(TamperedArtifact, match=rf"^{re.escape(str(weights))}: sha256 \w+ differs from lineage's"):
+        train_policy(str(manifest), episodes=2, steps=20, holdout=1)
 
 
 def test_train_policy_with_cameras_records_a_vision_checkpoint_that_evaluate_refuses_elsewhere(
