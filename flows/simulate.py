@@ -72,9 +72,12 @@ def simulate(manifest: str, episodes: Episodes = 2, controls: bool = False, poli
         if driver:  # weights changed behind lineage's back: one line, exit 5, before any episode
             verified_policy(run.warehouse, settings.data_root, driver)
         checkpoint = checkpoint_record(driver, settings.data_root, by="simulate") if driver else None
+        folder = paths.resolve(settings.data_root, paths.POLICY_EPISODES if driver else paths.EPISODES_OF_MANIFEST,
+                               manifest_hash=run.manifest_hash, policy_id=tags[-1] if driver else "")
         by_future = {simulate_episode.submit(scenario, run.manifest_hash, keys[key], settings.data_root, controls,
-                                             driver): stage
-                     for key, stage in run.stages("simulate", keys).items() if not stage.done}
+                                             driver): stage  # done, but its files deleted since: made again
+                     for key, stage in run.stages("simulate", keys).items()
+                     if not stage.done or not files.finished(folder / paths.EPISODE_FOLDER.format(index=keys[key]))}
         outcomes = {}
 
         def record(future) -> None:
@@ -105,8 +108,6 @@ def simulate(manifest: str, episodes: Episodes = 2, controls: bool = False, poli
                         record(future)
                 raise
         done = sorted(outcomes.items())
-        folder = paths.resolve(settings.data_root, paths.POLICY_EPISODES if driver else paths.EPISODES_OF_MANIFEST,
-                               manifest_hash=run.manifest_hash, policy_id=tags[-1] if driver else "")
         by = f" driven by {driver.name}" if driver else ""
         publish("simulate", f"{scenario.name}{by}: {len(done)} new episodes, {episodes - len(done)} already done",
                 markdown_table(("episode", "seed", "outcome", "reason"),

@@ -11,14 +11,15 @@ PREFECT_DIR = "prefect"
 QUARANTINE_DIR = "quarantine"
 
 EPISODES_OF_MANIFEST = "episodes/{manifest_hash:.12}"
-EPISODE_DIR = EPISODES_OF_MANIFEST + "/episode_{index:06d}"
+EPISODE_FOLDER = "episode_{index:06d}"  # an episode's folder inside its manifest's (or policy's)
+EPISODE_DIR = EPISODES_OF_MANIFEST + "/" + EPISODE_FOLDER
 EPISODE_VIDEO = EPISODE_DIR + "/{camera}.mp4"
 EPISODE_TABLE = EPISODE_DIR + "/steps.parquet"
 EPISODE_META = EPISODE_DIR + "/meta.json"
 # Episodes a named policy drove (`worldline simulate --policy`): a folder beside the manifest's
 # own, so training on the manifest never takes them in unasked; `train --also FOLDER` does.
 POLICY_EPISODES = EPISODES_OF_MANIFEST + "-{policy_id:.12}"
-POLICY_EPISODE_DIR = POLICY_EPISODES + "/episode_{index:06d}"
+POLICY_EPISODE_DIR = POLICY_EPISODES + "/" + EPISODE_FOLDER
 # Controls of a video (tasks/controls, docs/transfer.md): depth and segmentation that MuJoCo
 # renders (npz), edges and blur made of the video (mp4). An episode's sit in its controls/
 # folder, named by camera; any other video's beside it (or under --out), named by its stem.

@@ -134,6 +134,17 @@ def episode_lineage(files: EpisodeFiles, manifest_hash: str, stage_run_id: str, 
     return batch
 
 
+def finished(directory: Path) -> bool:
+    """Whether the episode folder ``directory`` holds a finished episode: meta.json (written
+    last), the step table, and every camera's video it names."""
+    try:
+        body = json.loads((Path(directory) / Path(paths.EPISODE_META).name).read_text())
+        names = [paths.CAMERA_VIDEO.format(camera=c) for c in [*body["cameras"], *body.get("rigs", [])]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return False
+    return all((Path(directory) / name).is_file() for name in [Path(paths.EPISODE_TABLE).name, *names])
+
+
 def read_episode(root: Path, digest: str, index: int) -> EpisodeFiles | None:
     """A finished episode from its files (meta.json is written last), or None."""
     meta = paths.resolve(root, paths.EPISODE_META, manifest_hash=digest, index=index)

@@ -115,3 +115,18 @@ def test_a_policy_checkpoint_whose_weights_changed_drives_no_episode(prefect_har
     with Warehouse(Settings().warehouse_path, read_only=True) as wh:
         assert wh.counts()["artifacts"] == before
     assert not list((data_root / "episodes").glob("*-*"))  # no policy folder of episodes
+
+
+def test_an_episode_whose_files_were_deleted_is_simulated_again(prefect_harness, data_root, tmp_path):
+    """Its stage was done in lineage, so simulate said "0 new episodes" and the loop's curate then
+    quarantined the missing video, exit 0; the same seed makes the same bytes again."""
+    import shutil
+
+    manifest = small_manifest(tmp_path)
+    first = simulate(str(manifest), 2)
+    episode = data_root / "episodes" / first["manifest_hash"][:12] / "episode_000001"
+    before = {p.name: p.read_bytes() for p in episode.iterdir() if p.suffix == ".mp4"}
+    shutil.rmtree(episode)
+    again = simulate(str(manifest), 2)
+    assert again["new"] == 1 and {p.name: p.read_bytes() for p in episode.iterdir() if p.suffix == ".mp4"} == before
+    assert simulate(str(manifest), 2)["new"] == 0
