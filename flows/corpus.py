@@ -8,10 +8,13 @@ from flows.params import Fps, Height, Minutes, Seed, Width
 from flows.params_data import CorpusParams
 from flows.recording import recorded_run
 from flows.report import markdown_table, progress, publish
+from schemas import paths
 from schemas.hashing import stable_id
 from schemas.settings import Settings
 from tasks import progress as ticks
 from tasks.corpus import generate
+from tasks.integrity import uri_of
+from warehouse.integrity import recorded_uris
 
 generate_corpus = task(generate.generate_corpus, name="generate-corpus", retries=1)
 
@@ -23,11 +26,22 @@ def corpus(minutes: Minutes = 1.0, seed: Seed = 0, width: Width = 640, height: H
     settings = Settings()
     params = {"minutes": minutes, "seed": seed, "width": width, "height": height, "fps": fps}
     with recorded_run("corpus", settings, params=params) as run:
+        root = settings.data_root
+        folder = paths.resolve(root, paths.CORPUS_VIDEO, seed=seed, index=0).parent
         stage = run.stage("corpus", stable_id("corpus", *(f"{k}={v}" for k, v in sorted(params.items()))),
                           manifest_hash=None)
+        if stage.done and (made := sorted(folder.glob("raw_*.mp4"))):  # made before with these settings
+            print(f"corpus seed {seed}: {len(made)} videos, made before with these settings")
+            return {"videos": [str(v) for v in made], "seed": seed}
+
+        def recorded(held: list) -> set:
+            uris = {uri_of(p, root): p for p in held}
+            return {uris[u] for u in recorded_uris(run.warehouse, list(uris))}
+
+        generate.check_folder(folder, recorded)  # never over another corpus's files or the user's
         with progress(round(minutes * 60 * fps), f"corpus seed {seed} (frames)", topic=ticks.CORPUS_FRAMES):
-            videos = generate_corpus(settings.data_root, seed=seed, minutes=minutes, width=width, height=height, fps=fps)
-        stage.finish(0, len(videos), generate.corpus_lineage(videos, stage.id, None, settings.data_root), attrs=params)
+            videos = generate_corpus(root, seed=seed, minutes=minutes, width=width, height=height, fps=fps)
+        stage.finish(0, len(videos), generate.corpus_lineage(videos, stage.id, None, root), attrs=params)
         print(f"corpus seed {seed}: {len(videos)} videos, {minutes} min at {width}x{height}")
         publish("corpus", f"seed {seed}, {len(videos)} videos, {minutes} min at {width}x{height}",
                 markdown_table(("video", "ground truth"), [(v.video.name, v.truth.name) for v in videos]),

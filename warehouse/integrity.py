@@ -26,6 +26,14 @@ def claims(warehouse: Warehouse, uri: str, sha256: str, kind: str) -> list[tuple
     return rows
 
 
+def recorded_uris(warehouse: Warehouse, uris: Sequence[str]) -> set[str]:
+    """Which of ``uris`` some artifact row names."""
+    if not uris:
+        return set()
+    _, rows = warehouse.query("SELECT DISTINCT uri FROM artifacts WHERE list_contains($uris, uri)", {"uris": list(uris)})
+    return {r[0] for r in rows}
+
+
 def recorded(warehouse: Warehouse, artifact_ids: Sequence[str]) -> dict[str, tuple]:
     """The row of each of ``artifact_ids`` that lineage holds with a uri and a sha256."""
     if not artifact_ids:

@@ -9,7 +9,8 @@ from __future__ import annotations
 import json
 import math
 import os
-from collections.abc import Iterator, Sequence
+import re
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +18,7 @@ import cv2
 import numpy as np
 
 from schemas import paths
+from schemas.errors import InvalidInput
 from schemas.hashing import sha256_file, stable_id
 from schemas.manifest import ScenarioManifest, manifest_hash
 from schemas.records import ArtifactRecord, EdgeRecord, LineageBatch, raw_video_id
@@ -120,6 +122,24 @@ def _truth(plan: VideoPlan, name: str, width: int, height: int) -> dict:
             "width": width, "height": height, "n_frames": plan.n_frames, "cuts": plan.cuts,
             "transitions": [{"kind": t.kind, "start": t.start, "end": t.end} for t in plan.transitions],
             "segments": segments}
+
+
+CORPUS_NAME = re.compile(r"raw_\d{4}(\.truth\.json|\.mp4)")
+
+
+def check_folder(folder: Path, recorded: Callable[[list[Path]], set[Path]]) -> None:
+    """InvalidInput when ``folder`` (a seed's corpus folder about to be written) holds what a new
+    corpus would overwrite: files of a corpus lineage recorded (another run's, with other
+    settings) or files not named as a corpus names its own. Unrecorded corpus files (an
+    interrupted run's) are written over."""
+    held = sorted(p for p in Path(folder).iterdir()) if Path(folder).is_dir() else []
+    theirs = [p.name for p in held if not CORPUS_NAME.fullmatch(p.name)]
+    earlier = sorted(p.name for p in recorded([p for p in held if CORPUS_NAME.fullmatch(p.name)]))
+    if theirs or earlier:
+        shown = ", ".join((theirs or earlier)[:3]) + (" ..." if len(theirs or earlier) > 3 else "")
+        why = "files that are not a corpus's" if theirs else "a corpus of other settings (in lineage)"
+        raise InvalidInput(f"{folder}: holds {why} ({shown}); a new corpus would overwrite them: choose another "
+                           "--seed, or move them aside")
 
 
 def generate_corpus(root: Path, seed: int, minutes: float, n_videos: int | None = None, width: int = 1280,
