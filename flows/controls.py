@@ -15,6 +15,7 @@ from schemas.hashing import sha256_file, stable_id
 from schemas.settings import Settings
 from tasks.controls import files, sources
 from tasks.controls.video import CONTROLS_VERSION, VIDEO_CONTROLS, write_video_controls
+from tasks.lookup import recorded_files, verified_file
 from tasks.video import DecodeError
 
 make_controls = task(write_video_controls, name="video-controls", retries=1)
@@ -37,8 +38,14 @@ def controls(source: str, out: str | None = None) -> dict:
             outputs = [paths.control_file(item.folder, item.name, c) for c in VIDEO_CONTROLS]
             key = stable_id("controls", sha, str(CONTROLS_VERSION), *map(str, outputs))
             stage = run.stage("controls", key, outputs=outputs, manifest_hash=item.manifest_hash)
-            if stage.done:
+            if stage.done:  # its files must still be the ones lineage recorded (else exit 5)
+                for output in outputs:
+                    verified_file(run.warehouse, settings.data_root, output, "control", "control")
                 already += 1
+                continue
+            taken = [p for p in outputs if p.exists()]  # a file there lineage does not hold is the user's
+            if theirs := sorted(set(taken) - recorded_files(run.warehouse, settings.data_root, taken)):
+                run.fail_input(f"{theirs[0]}: a file lineage did not record is there; move it aside (not overwritten)")
                 continue
             try:
                 made = make_controls(item.video, item.folder, item.name)

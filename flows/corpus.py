@@ -13,8 +13,7 @@ from schemas.hashing import stable_id
 from schemas.settings import Settings
 from tasks import progress as ticks
 from tasks.corpus import generate
-from tasks.integrity import uri_of
-from warehouse.integrity import recorded_uris
+from tasks.lookup import recorded_files
 
 generate_corpus = task(generate.generate_corpus, name="generate-corpus", retries=1)
 
@@ -33,12 +32,7 @@ def corpus(minutes: Minutes = 1.0, seed: Seed = 0, width: Width = 640, height: H
         if stage.done and (made := sorted(folder.glob("raw_*.mp4"))):  # made before with these settings
             print(f"corpus seed {seed}: {len(made)} videos, made before with these settings")
             return {"videos": [str(v) for v in made], "seed": seed}
-
-        def recorded(held: list) -> set:
-            uris = {uri_of(p, root): p for p in held}
-            return {uris[u] for u in recorded_uris(run.warehouse, list(uris))}
-
-        generate.check_folder(folder, recorded)  # never over another corpus's files or the user's
+        generate.check_folder(folder, lambda held: recorded_files(run.warehouse, root, held))  # nor the user's
         with progress(round(minutes * 60 * fps), f"corpus seed {seed} (frames)", topic=ticks.CORPUS_FRAMES):
             videos = generate_corpus(root, seed=seed, minutes=minutes, width=width, height=height, fps=fps)
         stage.finish(0, len(videos), generate.corpus_lineage(videos, stage.id, None, root), attrs=params)

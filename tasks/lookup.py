@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from schemas import paths
 from schemas.errors import StepMissing, TamperedArtifact
 from tasks import integrity
 from tasks.checkpoint_files import CONFIG_FILE, WEIGHTS_FILE, CheckpointError
@@ -81,6 +82,13 @@ def verified_world_model(warehouse: Warehouse | None, root: Path, folder: Path |
     if isinstance(tokenizer, str):
         verified_checkpoint(warehouse, root, integrity.path_of(tokenizer, Path(root).resolve()))
     return artifact_id
+
+
+def recorded_files(warehouse: Warehouse | None, root: Path, held: list[Path]) -> set[Path]:
+    """Which of the files ``held`` lineage records at their paths (none without a warehouse): a
+    file there that it does not is someone else's, not to be written over."""
+    uris = {paths.escaped(integrity.uri_of(p, root)): p for p in held}
+    return {uris[u] for u in claims.recorded_uris(warehouse, list(uris))} if warehouse is not None else set()
 
 
 def verified_episode(warehouse: Warehouse | None, root: Path, episode) -> None:

@@ -90,6 +90,26 @@ def test_controls_of_a_clip_under_out_and_refusals(prefect_harness, data_root, t
     assert nothing.exit_code == 2 and "no readable video there" in nothing.output, nothing.output
 
 
+def test_controls_write_over_no_file_of_the_users_and_refuse_a_changed_one(prefect_harness, data_root, tmp_path):
+    """A user's file under a control's name was replaced without a word, and a control file
+    changed after it was written was skipped as done (exit 0)."""
+    folder = tmp_path / "videos"
+    folder.mkdir()
+    for name in ("a", "b"):
+        write_video(folder / f"{name}.mp4", scene_frames(3))
+    (folder / "a.blur.mp4").write_bytes(b"mine")
+    partial = runner.invoke(app, ["controls", str(folder)])
+    assert partial.exit_code == 1, partial.output
+    assert any(line.startswith(f"{folder / 'a.blur.mp4'}: a file lineage did not record is there")
+               for line in lines(partial)), partial.output
+    assert (folder / "a.blur.mp4").read_bytes() == b"mine" and not (folder / "a.edges.mp4").exists()
+    assert (folder / "b.blur.mp4").is_file() and (folder / "b.edges.mp4").is_file()  # the rest go on
+    edges = folder / "b.edges.mp4"
+    edges.write_bytes(edges.read_bytes() + b"appended")
+    refused = runner.invoke(app, ["controls", str(folder / "b.mp4")])
+    assert refused.exit_code == 5 and lines(refused)[-1].startswith(f"{edges}: sha256 "), refused.output
+
+
 def test_the_flows_take_what_their_parameter_models_hold():
     """As tests/flows/test_param_checks.py holds every other flow: the CLI and a deployment
     (prefect.yaml's controls-inbox) are checked by the same model."""
