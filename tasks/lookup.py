@@ -91,19 +91,23 @@ def recorded_files(warehouse: Warehouse | None, root: Path, held: list[Path]) ->
     return {uris[u] for u in claims.recorded_uris(warehouse, list(uris))} if warehouse is not None else set()
 
 
-def verified_episode(warehouse: Warehouse | None, root: Path, episode) -> None:
+def verified_episode(warehouse: Warehouse | None, root: Path, episode) -> dict[Path, tuple[str | None, str]]:
     """A reused episode's step table and camera videos checked against lineage: each file's
     bytes (``verified_file``), and each video the one lineage recorded as rendered for this
     episode. Videos are recorded by content, so at a path with no row of its own (a panel's
     nominal cell, byte for byte the manifest's episodes) a copy of another episode's video
-    matched that episode's row and was used (TamperedArtifact now)."""
+    matched that episode's row and was used (TamperedArtifact now). Returns each video's
+    (artifact id, sha256), so a caller need not hash it again."""
     episode_id, _, _ = verified_file(warehouse, root, episode.table, "episode", "episode")
     rendered = claims.children(warehouse, [episode_id], "rendered") if warehouse is not None and episode_id else None
+    found = {}
     for video in episode.videos.values():
         video_id, _, digest = verified_file(warehouse, root, video, "episode_video", "episode video")
         if rendered is not None and video_id not in rendered:
             raise TamperedArtifact(f"{video}: sha256 {digest[:12]} is not a video lineage recorded for this "
                                    f"episode ({episode_id[:12]}); run `worldline verify`")
+        found[Path(video)] = (video_id, digest)
+    return found
 
 
 def verified_policy(warehouse: Warehouse | None, root: Path, policy) -> None:

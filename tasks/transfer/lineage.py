@@ -88,9 +88,10 @@ def episode_inputs(warehouse, root: Path, model: Inputs, video: Path, controls: 
     in an episode folder lineage recorded, the video must be one that episode rendered (its step
     table, copied beside the clip as its labels, must describe these frames)."""
     table = Path(video).parent / Path(paths.EPISODE_TABLE).name
-    if table.is_file():
-        verified_episode(warehouse, root, SimpleNamespace(table=table, videos={"source": Path(video)}))
-    video_id, _, sha = verified_file(warehouse, root, video, "episode_video", "episode video")
+    if table.is_file():  # hashed once, as the episode's
+        video_id, sha = verified_episode(warehouse, root, SimpleNamespace(table=table, videos={0: Path(video)}))[Path(video)]
+    else:
+        video_id, _, sha = verified_file(warehouse, root, video, "episode_video", "episode video")
     new = list(model.new)
     if video_id is None:
         video_id = raw_video_id(sha)
